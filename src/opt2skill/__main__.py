@@ -1,0 +1,3 @@
+from opt2skill.cli.app import main
+
+main()

@@ -1,0 +1,20 @@
+"""Shared terminal output: one rich console, and tables of figures."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from rich.console import Console
+from rich.table import Table
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def figures_table(title: str, rows: Iterable[tuple[str, str]], headers: tuple[str, str] = ("quantity", "value")) -> Table:
+    table = Table(title=title, title_justify="left")
+    table.add_column(headers[0])
+    table.add_column(headers[1], justify="right")
+    for name, value in rows:
+        table.add_row(name, value)
+    return table
