@@ -1,0 +1,1 @@
+"""Whole-body trajectory optimization (Crocoddyl): tasks, problem builders, solvers."""

@@ -1,0 +1,34 @@
+"""A task is a family of motions: a parameter space and a solver that returns a trajectory record.
+
+Dataset generation (`opt2skill generate <task>`) only uses this interface, so a new task (stairs,
+box pickup, ...) is a new `Task` subclass registered in `trajopt.registry`, not a new pipeline.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Any, ClassVar
+
+from opt2skill.data.record import Trajectory
+from opt2skill.model.robot import Robot
+from opt2skill.trajopt.params import ParamSpace
+
+
+class Task(ABC):
+    name: ClassVar[str]
+
+    def __init__(self, robot: Robot, overrides: dict[str, Any] | None = None):
+        """`overrides`: values that replace the task config's defaults (unknown keys are errors)."""
+        self.robot = robot
+
+    @abstractmethod
+    def param_space(self) -> ParamSpace:
+        """The task's parameters with their allowed and sampling ranges."""
+
+    @abstractmethod
+    def solve(self, params: dict[str, float], seed: int) -> Trajectory:
+        """Optimize one motion. Raises `SolverError` when the solver diverges or fails.
+
+        The record carries 200 Hz frames, solver statistics (`solver`) and provenance; validation
+        fills `validation` afterwards.
+        """
