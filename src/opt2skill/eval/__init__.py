@@ -1,0 +1,1 @@
+"""The paper's evaluation: tracking metrics, statistics over trajectories, comparisons."""

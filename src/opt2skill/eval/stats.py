@@ -1,0 +1,54 @@
+"""Statistics over trajectories: mean and standard error per metric, and paired comparisons."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import wilcoxon
+
+from opt2skill.eval.metrics import METRICS, TrackingErrors
+
+
+@dataclass(frozen=True)
+class Summary:
+    mean: float
+    se: float  # standard error of the mean (sample std / sqrt(n)); NaN for n < 2
+    n: int  # trajectories with a defined value
+
+
+def summarize(errors: list[TrackingErrors]) -> dict[str, Summary]:
+    """Mean and standard error of every metric over trajectories; undefined values (NaN) skipped."""
+    out = {}
+    for name in METRICS:
+        values = np.array([getattr(e, name) for e in errors], dtype=float)
+        values = values[np.isfinite(values)]
+        n = len(values)
+        mean = float(values.mean()) if n else float("nan")
+        se = float(values.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+        out[name] = Summary(mean=mean, se=se, n=n)
+    return out
+
+
+def success_rate(errors: list[TrackingErrors]) -> float:
+    return float(np.mean([not e.fell for e in errors])) if errors else float("nan")
+
+
+def paired_wilcoxon(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, float]:
+    """Two-sided Wilcoxon signed-rank p-value per metric, pairing rollouts on the same references.
+
+    NaN where fewer than two pairs are defined or where every difference is zero.
+    """
+    if len(a) != len(b):
+        raise ValueError(f"paired comparison needs the same references: {len(a)} against {len(b)} rollouts")
+    p_values = {}
+    for name in METRICS:
+        x = np.array([getattr(e, name) for e in a], dtype=float)
+        y = np.array([getattr(e, name) for e in b], dtype=float)
+        keep = np.isfinite(x) & np.isfinite(y)
+        diff = x[keep] - y[keep]
+        if keep.sum() < 2 or np.all(diff == 0):
+            p_values[name] = float("nan")
+            continue
+        p_values[name] = float(wilcoxon(x[keep], y[keep]).pvalue)
+    return p_values
