@@ -103,6 +103,15 @@ def _add_sensors(spec: mujoco.MjSpec, config: RobotConfig) -> None:
             name=f"contact_{foot.name}", type=s.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_XBODY,
             objname=foot.body, intprm=[1 | 2 | 4 | 16, 3, 1],  # data: found|force|torque|pos; reduce: netforce
         )
+    # Appended after the original sensors so their addresses stay put. The sole positions are the
+    # points contact wrenches are taken about; the end-effector velocities and accelerations let
+    # `sim` carry positions measured at the start of a physics step to its end (docs/sim.md).
+    for foot in config.feet:
+        spec.add_sensor(name=f"sole_{foot.name}", type=s.mjSENS_FRAMEPOS, objtype=site, objname=foot.sole_site)
+    for name, site_name in config.end_effectors.items():
+        spec.add_sensor(name=f"eevel_{name}", type=s.mjSENS_FRAMELINVEL, objtype=site, objname=site_name)
+    for name, site_name in config.end_effectors.items():
+        spec.add_sensor(name=f"eeacc_{name}", type=s.mjSENS_FRAMELINACC, objtype=site, objname=site_name)
 
 
 def _check_joint_order(config: RobotConfig, model_joints: list[str], where: str) -> None:

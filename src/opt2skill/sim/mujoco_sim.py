@@ -1,0 +1,249 @@
+"""The C MuJoCo backend: N worlds stepped by `mujoco.rollout` on a persistent thread pool.
+
+Each world has its own MjModel copy (its randomized parameters and terrain); each pool thread has
+one MjData. A policy step is one `rollout` call of S physics steps for all worlds, with the
+per-physics-step PD targets of every world (action delay included) as its open-loop controls. The
+servos compute u = Kp (q* - q) - Kd qd, clipped to the torque limit, at every physics step.
+
+Between calls a world's full physics state (time, qpos, qvel, act, history, plugin state) lives in
+one array row; `rollout` starts each call from it with a zero constraint warm start, so the result
+of a policy step is a function of that row, the world's model and its controls alone.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from opt2skill.errors import ConfigError
+from opt2skill.model.robot import Robot
+from opt2skill.sim.base import BatchedSim, SimConfig, SimStep
+from opt2skill.sim.delay import ActionDelay
+from opt2skill.sim.outputs import OutputDecoder
+from opt2skill.sim.params import NominalModel, WorldParams
+from opt2skill.sim.scene import TerrainScene
+from opt2skill.sim.terrain import Flat, Terrain
+
+FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
+CTRL = mujoco.mjtState.mjSTATE_CTRL.value
+
+
+class MujocoBatchedSim(BatchedSim):
+    """Batched C MuJoCo. All worlds start at the robot's stand pose on terrain 0 with nominal parameters."""
+
+    def __init__(
+        self,
+        robot: Robot,
+        nworld: int,
+        config: SimConfig | None = None,
+        terrains: Sequence[Terrain] = (Flat(),),
+    ):
+        if not (isinstance(nworld, (int, np.integer)) and nworld >= 1):
+            raise ConfigError(f"number of worlds must be a positive integer, got {nworld}")
+        self.robot, self.nworld = robot, int(nworld)
+        self.config = config or SimConfig()
+        self._scene = TerrainScene(terrains)
+        self.terrains = self._scene.terrains
+        spec = robot.mj_spec()
+        self._scene.add_to(spec)
+        base = robot.compile(spec)
+        self._scene.bind(base)
+        if self.config.physics_dt is not None:
+            base.opt.timestep = self.config.physics_dt
+        self._dt = float(base.opt.timestep)
+        self.nbody, self.nu = base.nbody, base.nu
+        self._max_delay_steps = int(round(self.config.max_delay / self._dt))
+        self._nominal = NominalModel(base)
+        self._decoder = OutputDecoder(robot, base)
+        self._corners = np.array([[robot.site_id(s) for s in foot.corner_sites] for foot in robot.config.feet])
+        self.models = [copy.deepcopy(base) for _ in range(self.nworld)]
+
+        threads = self.config.threads
+        self._pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
+        self._datas = [mujoco.MjData(base) for _ in range(threads)]  # one per pool thread
+        self._scratch = mujoco.MjData(base)
+        nstate = mujoco.mj_stateSize(base, FULLPHYSICS)
+        S = self.nsubstep
+        self._state = np.zeros((self.nworld, nstate))
+        self._out_state = np.zeros((self.nworld, S, nstate))
+        self._out_sensor = np.zeros((self.nworld, S, base.nsensordata))
+        self._qpos = slice(1, 1 + base.nq)  # FULLPHYSICS starts with time, qpos, qvel
+        self._qvel = slice(1 + base.nq, 1 + base.nq + base.nv)
+        self._delay = ActionDelay(self.nworld, base.nu, S, self._max_delay_steps)
+        self._params = WorldParams.nominal(self.nworld, base.nbody, base.nu)
+        self._z_offset = np.zeros(self.nworld)
+        self._gravity = np.tile(base.opt.gravity, (self.nworld, 1))
+        self._last: SimStep | None = None
+
+        everyone = np.arange(self.nworld)
+        self.set_params(everyone, self._params)
+        stand = np.broadcast_to(robot.stand_qpos, (self.nworld, base.nq))
+        self._last = self.reset(everyone, stand, np.zeros((self.nworld, base.nv)))
+
+    # ---------------------------------------------------------------- interface
+
+    @property
+    def physics_dt(self) -> float:
+        return self._dt
+
+    @property
+    def params(self) -> WorldParams:
+        return self._params.rows(np.arange(self.nworld))
+
+    @property
+    def z_offset(self) -> np.ndarray:
+        return self._z_offset.copy()
+
+    @property
+    def state(self) -> np.ndarray:
+        """(N, nstate) full physics state of every world (mjSTATE_FULLPHYSICS layout), a copy."""
+        return self._state.copy()
+
+    def set_params(self, worlds: np.ndarray, params: WorldParams) -> None:
+        worlds = self._check_worlds(worlds)
+        m = self.models[0]
+        p = params.checked(len(worlds), m.nbody, m.nu, self.config.max_delay, len(self.terrains))
+        for row, w in enumerate(worlds):  # per reset, never per step
+            model = self.models[w]
+            self._nominal.apply(model, p, row)
+            self._scene.apply(model, int(p.terrain[row]))
+        self._delay.set_delay(worlds, np.rint(p.delay / self._dt).astype(int))
+        self._params.assign(worlds, p)
+        self._gravity[worlds] = self._nominal.gravity * p.gravity_scale[:, None]
+
+    def reset(
+        self,
+        worlds: np.ndarray,
+        qpos: np.ndarray,
+        qvel: np.ndarray,
+        targets: np.ndarray | None = None,
+        params: WorldParams | None = None,
+    ) -> SimStep:
+        worlds = self._check_worlds(worlds)
+        k, m = len(worlds), self.models[0]
+        qpos = _checked_array("qpos", qpos, (k, m.nq))
+        qvel = _checked_array("qvel", qvel, (k, m.nv))
+        if targets is not None:
+            targets = _checked_array("targets", targets, (k, m.nu))
+        if params is not None:
+            self.set_params(worlds, params)
+        d = self._scratch
+        sensors = np.zeros((k, 1, m.nsensordata))
+        for row, w in enumerate(worlds):  # per reset, never per step
+            model = self.models[w]
+            mujoco.mj_resetData(model, d)  # time 0, act and history cleared
+            d.qpos[:] = qpos[row]
+            d.qvel[:] = qvel[row]
+            self._z_offset[w] = self._lift_onto_terrain(model, d, w)
+            d.qpos[2] += self._z_offset[w]
+            d.ctrl[:] = targets[row] if targets is not None else d.qpos[7:]
+            mujoco.mj_forward(model, d)
+            mujoco.mj_getState(model, d, self._state[w], FULLPHYSICS)
+            sensors[row, 0] = d.sensordata
+        self._delay.clear(worlds, targets)
+        state = self._state[worlds]
+        out = self._decoder.decode(
+            state[:, 0], state[:, self._qpos], state[:, self._qvel], state[:, self._qvel], sensors, 0.0, self.policy_dt,
+            self._gravity[worlds],
+        )
+        if self._last is not None:
+            self._last.assign(worlds, out)
+        return out
+
+    def step(self, targets: np.ndarray) -> SimStep:
+        targets = np.asarray(targets, dtype=float)
+        if targets.shape != (self.nworld, self.models[0].nu):
+            raise ConfigError(f"targets must have shape {(self.nworld, self.models[0].nu)}, got {targets.shape}")
+        start = self._state.copy()
+        control = self._delay.sequence(targets)
+        self._pool.rollout(
+            self.models, self._datas, start, control, control_spec=CTRL, skip_checks=True,
+            nstep=self.nsubstep, state=self._out_state, sensordata=self._out_sensor,
+            chunk_size=self.config.chunk_size,
+        )
+        end = self._out_state[:, -1]
+        self._state[:] = end
+        out = self._decoder.decode(
+            end[:, 0].copy(), end[:, self._qpos].copy(), end[:, self._qvel].copy(), start[:, self._qvel],
+            self._out_sensor, self._dt, self.policy_dt, self._gravity,
+        )
+        bad = self._diverged(start[:, 0], end)
+        if bad.any():
+            self._hold(bad, start, out)
+        self._last = out
+        return out
+
+    def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self._nominal.gains(self._params)
+
+    def terrain_height(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=float)
+        if xy.ndim != 3 or xy.shape[0] != self.nworld or xy.shape[2] != 2:
+            raise ConfigError(f"xy must have shape ({self.nworld}, k, 2), got {xy.shape}")
+        out = np.zeros(xy.shape[:2])
+        which = self._params.terrain
+        for index in np.unique(which):  # a loop over the few terrains, not the worlds
+            worlds = which == index
+            out[worlds] = self.terrains[index].height(xy[worlds])
+        return out
+
+    def close(self) -> None:
+        if self._pool is not None and self._pool.rollout_ is not None:
+            self._pool.close()
+
+    # ---------------------------------------------------------------- internals
+
+    def _diverged(self, time_start: np.ndarray, end: np.ndarray) -> np.ndarray:
+        """Worlds whose step went wrong: MuJoCo reset them or stopped (a warning: time did not advance
+        by S physics steps), or a state or reading is not finite, or a speed exceeds the bound."""
+        expected = time_start + self.nsubstep * self._dt
+        with np.errstate(invalid="ignore", over="ignore"):
+            ok = np.abs(end[:, 0] - expected) <= 0.5 * self._dt
+            ok &= np.abs(end[:, self._qvel]).max(axis=1) <= self.config.max_speed  # False for NaN
+            ok &= np.isfinite(end.sum(axis=1) + self._out_sensor.sum(axis=(1, 2)))  # sums keep NaN and inf
+        return ~ok
+
+    def _hold(self, bad: np.ndarray, start: np.ndarray, out: SimStep) -> None:
+        """Isolate diverged worlds: back to their state before the step, outputs of that state."""
+        self._state[bad] = start[bad]
+        out.assign(bad, self._last.rows(bad))
+        out.unstable[:] = bad
+
+    def _lift_onto_terrain(self, model: mujoco.MjModel, d: mujoco.MjData, world: int) -> float:
+        """Height to add so no foot is inside the terrain and the feet are not lowered below it.
+
+        With c_f the lowest sole corner of foot f and h_f the highest terrain under it, the lift is
+        max(max_f (h_f - c_f), min_f h_f): a stance foot (c = 0) lands on the highest point under it,
+        a swing foot keeps its clearance. On the flat plane it is 0.
+        """
+        terrain = self.terrains[int(self._params.terrain[world])]
+        if isinstance(terrain, Flat):
+            return 0.0
+        mujoco.mj_kinematics(model, d)
+        corners = d.site_xpos[self._corners]  # (nfeet, 4, 3)
+        heights = terrain.max_height(corners[..., :2].min(axis=1), corners[..., :2].max(axis=1))
+        lowest = corners[..., 2].min(axis=1)
+        return float(max((heights - lowest).max(), heights.min()))
+
+    def _check_worlds(self, worlds) -> np.ndarray:
+        worlds = np.atleast_1d(np.asarray(worlds))
+        if worlds.dtype == bool:
+            worlds = np.flatnonzero(worlds)
+        if worlds.ndim != 1 or not np.issubdtype(worlds.dtype, np.integer):
+            raise ConfigError("worlds must be a 1-D array of world indices or a boolean mask")
+        if worlds.size and (worlds.min() < 0 or worlds.max() >= self.nworld or len(np.unique(worlds)) != len(worlds)):
+            raise ConfigError(f"world indices must be distinct and in [0, {self.nworld - 1}]")
+        return worlds
+
+
+def _checked_array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
+    value = np.asarray(value, dtype=float)
+    if value.shape != shape:
+        raise ConfigError(f"{name} must have shape {shape}, got {value.shape}")
+    if not np.all(np.isfinite(value)):
+        raise ConfigError(f"{name} contains non-finite values")
+    return value
