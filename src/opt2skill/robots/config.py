@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from opt2skill.errors import ConfigError
+from opt2skill.yaml_files import read_mapping
 
 
 @dataclass(frozen=True)
@@ -107,14 +107,7 @@ _FOOT_KEYS = {"body", "sole_site", "corner_sites", "half_length", "half_width"}
 def load_robot_config(path: Path) -> RobotConfig:
     """Parse and check a robot.yaml. Model-dependent checks happen when the model is loaded."""
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"robot config not found: {path}")
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"robot config {path} is not valid YAML: {exc}") from None
-    if not isinstance(raw, dict):
-        raise ConfigError(f"robot config {path} must be a mapping of keys to values")
+    raw = read_mapping(path, "robot config")
     where = str(path)
     _check_keys(raw, _TOP_KEYS, _TOP_KEYS - {"default_pose"}, where)
 

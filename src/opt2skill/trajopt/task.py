@@ -32,3 +32,11 @@ class Task(ABC):
         The record carries 200 Hz frames, solver statistics (`solver`) and provenance; validation
         fills `validation` afterwards.
         """
+
+    def task_errors(self, traj: Trajectory) -> dict[str, dict[str, Any]]:
+        """Task-specific checks of a solved record (e.g. realized against requested speed).
+
+        name -> {"value": float, "limit": float, "unit": str}; a value above its limit rejects the
+        trajectory. Values are non-negative errors. Default: no task-specific checks.
+        """
+        return {}

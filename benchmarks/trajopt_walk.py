@@ -1,0 +1,120 @@
+"""Walking trajectory optimization on one core: seconds per 14-s trajectory, iterations, acceptance.
+
+A fixed, seeded set of walks over the full default parameter ranges is solved one after another in
+this process (OMP_NUM_THREADS=1) and validated with `opt2skill.data.validate`. Printed: median and
+p90 seconds per trajectory for the solve (plan + optimization + 200 Hz frames) and the validation
+separately and together, iterations, acceptance with the rejection reasons, peak memory, and the
+cost of a cold full-horizon solve next to the default warm-started receding-window solve.
+
+Target (issue 3): median <= 15 s per 14-s trajectory per core including validation, >= 90 %
+accepted over the full parameter ranges.
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --seed 0
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import resource
+import time
+from collections import Counter
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from opt2skill.data.validate import ValidationConfig, validate  # noqa: E402
+from opt2skill.errors import SolverError  # noqa: E402
+from opt2skill.model import load_robot  # noqa: E402
+from opt2skill.trajopt.registry import get_task  # noqa: E402
+
+
+def _stats(values: list[float]) -> str:
+    if not values:
+        return "n/a"
+    return f"median {np.median(values):6.2f}  p90 {np.percentile(values, 90):6.2f}  max {max(values):6.2f}"
+
+
+def cold_against_warm(robot, params: dict, seed: int, max_iter: int) -> None:
+    """One walk solved cold over the full horizon (from standing everywhere) and warm (default)."""
+    print(f"\ncold full-horizon solve against the default warm-started receding solve ({params_text(params)})")
+    for label, overrides in (
+        ("cold, full horizon", {"receding.enabled": False, "solver.max_iter": max_iter}),
+        ("warm, receding windows", {}),
+    ):
+        task = get_task("walk", robot, overrides)
+        start = time.perf_counter()
+        try:
+            traj = task.solve(params, seed)
+        except SolverError as exc:
+            print(f"  {label:24s} failed after {time.perf_counter() - start:6.1f} s: {exc}")
+            continue
+        s = traj.solver
+        print(
+            f"  {label:24s} {time.perf_counter() - start:7.1f} s  solver {s['solve_time']:7.1f} s  "
+            f"iterations {s['iterations']:4d}  cost {s['cost']:10.2f}  stop: {s['stop_reason']}"
+        )
+
+
+def params_text(params: dict) -> str:
+    keys = ("speed", "clearance", "step_duration", "double_support", "height_offset")
+    return ", ".join(f"{k} {params[k]:.3g}" for k in keys)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--n", type=int, default=20, help="number of walks")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--cold-max-iter", type=int, default=200, help="iteration cap of the cold solve (0: skip it)")
+    args = parser.parse_args()
+
+    robot = load_robot("digit")
+    task = get_task("walk", robot)
+    space = task.param_space()
+    config = ValidationConfig()
+    print(f"walk benchmark: {args.n} walks, seed {args.seed}, {platform.processor() or platform.machine()}, "
+          f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, {time.strftime('%Y-%m-%d')}")
+    solve_s, valid_s, total_s, iterations = [], [], [], []
+    accepted, reasons, failures = 0, Counter(), []
+    for index in range(args.n):
+        params = space.sample(args.seed, index)
+        start = time.perf_counter()
+        try:
+            traj = task.solve(params, args.seed)
+        except SolverError as exc:
+            failures.append(index)
+            reasons["solver_failed"] += 1
+            print(f"{index:3d} FAILED ({time.perf_counter() - start:.1f} s): {exc}  [{params_text(params)}]", flush=True)
+            continue
+        solved = time.perf_counter() - start
+        result = validate(robot, traj, config, task.task_errors(traj))
+        checked = time.perf_counter() - start - solved
+        solve_s.append(solved)
+        valid_s.append(checked)
+        total_s.append(solved + checked)
+        iterations.append(traj.solver["iterations"])
+        accepted += bool(result["accepted"])
+        reasons.update(result["reasons"])
+        verdict = "accepted" if result["accepted"] else "rejected: " + ", ".join(result["reasons"])
+        print(
+            f"{index:3d} solve {solved:6.1f} s  validate {checked:5.1f} s  iterations {traj.solver['iterations']:4d}  "
+            f"{verdict}  [{params_text(params)}]",
+            flush=True,
+        )
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print("\nseconds per 14-s walk, one core")
+    print(f"  solve      {_stats(solve_s)}")
+    print(f"  validation {_stats(valid_s)}")
+    print(f"  total      {_stats(total_s)}   (target: median <= 15 s)")
+    print(f"iterations   {_stats([float(i) for i in iterations])}")
+    print(f"accepted     {accepted}/{args.n} = {100.0 * accepted / max(args.n, 1):.0f} %   (target >= 90 %)")
+    print(f"reasons      {dict(reasons) or '-'}")
+    print(f"peak memory  {peak_mb:.0f} MB (resident, this process)")
+    if args.cold_max_iter > 0:
+        cold_against_warm(robot, space.sample(args.seed, 0), args.seed, args.cold_max_iter)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,203 @@
+"""Replay a reference in MuJoCo: reference-torque feedforward plus PD at the physics rate (1 kHz).
+
+At every physics step the servos receive the target `q_ref + (tau_ref + kd qd_ref) / kp`, so the
+actuator applies exactly `tau_ref + kp (q_ref - q) + kd (qd_ref - qd)`, clipped to the torque
+limits (docs/conventions.md: feedforward through the servo target). The references are the 200 Hz
+frames: joint positions and velocities interpolated linearly, torques held over each frame.
+
+An open-loop replay of a long walk drifts and falls even when the reference is dynamically exact
+(the feedforward is open loop; the PD only corrects joint angles, not balance). So a replay is run
+twice: once over the whole motion (the time to fall is reported), and as windows of fixed length,
+each restarted from the reference state, that tile the motion (a reference that cannot be followed
+for a few seconds from its own state is suspicious). docs/data.md gives the figures behind this.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import mujoco.rollout
+import numpy as np
+import pinocchio as pin
+
+from opt2skill.data.record import FRAME_DT, Trajectory
+from opt2skill.geometry import quat_error
+from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
+from opt2skill.model.robot import Robot
+from opt2skill.model.sensors import SensorLayout
+
+
+@dataclass(frozen=True)
+class ReplaySettings:
+    window: float = 1.0  # s, length of each restarted replay window (docs/data.md: why 1 s)
+    fall_height: float = 0.25  # m: fallen when the base is this much lower than the reference
+    fall_angle: float = 0.5  # rad: fallen when the base orientation is this far from the reference
+    velocity_reference: bool = True  # PD on (qd_ref - qd) rather than on -qd
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """One replay from a reference frame: what happened, until the fall if there was one."""
+
+    start: float  # s, reference time of the start
+    duration: float  # s replayed
+    fall_time: float | None  # s after the start, None when the robot stayed up
+    joint_rms: float  # rad, joint position error RMS until the fall
+    base_error: float  # m, largest base position error until the fall
+    foot_error: float  # m, largest sole position error until the fall
+
+
+def _interp(values: np.ndarray, frac: np.ndarray) -> np.ndarray:
+    k0 = np.clip(np.floor(frac).astype(int), 0, len(values) - 1)
+    k1 = np.minimum(k0 + 1, len(values) - 1)
+    w = (frac - k0).reshape(-1, *([1] * (values.ndim - 1)))
+    return (1.0 - w) * values[k0] + w * values[k1]
+
+
+def _interp_quat(quat: np.ndarray, frac: np.ndarray) -> np.ndarray:
+    k0 = np.clip(np.floor(frac).astype(int), 0, len(quat) - 1)
+    k1 = np.minimum(k0 + 1, len(quat) - 1)
+    q1 = quat[k1] * np.sign(np.sum(quat[k0] * quat[k1], axis=-1, keepdims=True) + 1e-300)
+    w = (frac - k0)[:, None]
+    q = (1.0 - w) * quat[k0] + w * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+class Replayer:
+    """Replays one trajectory on one robot (single-threaded: one per validation worker)."""
+
+    def __init__(self, robot: Robot, traj: Trajectory, settings: ReplaySettings = ReplaySettings()):
+        self.robot, self.traj, self.settings = robot, traj, settings
+        self.model = robot.mj_model
+        self.data = mujoco.MjData(self.model)
+        self.dt = float(self.model.opt.timestep)
+        self.layout = SensorLayout.from_model(self.model, robot.config)
+        feet = [f.name for f in robot.config.feet]
+        self.foot_sensor = [self.layout.ee_names.index(n) for n in feet]
+        self.foot_ref = [traj.ee_names.index(n) for n in feet]
+
+    def _frac(self, start_frame: int, nstep: int, offset: float = 0.0) -> np.ndarray:
+        """Fractional frame index at each physics step (plus `offset` steps)."""
+        return start_frame + (np.arange(nstep) + offset) * self.dt / FRAME_DT
+
+    def controls(self, start_frame: int, nstep: int) -> np.ndarray:
+        cfg, tr = self.robot.config, self.traj
+        frac = self._frac(start_frame, nstep)
+        q_ref = _interp(tr.qpos[:, 7:], frac)
+        tau = tr.joint_torque[np.clip(np.floor(frac + 1e-9).astype(int), 0, tr.num_frames - 1)]
+        if self.settings.velocity_reference:
+            tau = tau + cfg.kd * _interp(tr.qvel[:, 6:], frac)
+        return q_ref + tau / cfg.kp
+
+    def initial_state(self, frame: int) -> np.ndarray:
+        d = self.data
+        mujoco.mj_resetData(self.model, d)
+        d.qpos[:] = self.traj.qpos[frame]
+        d.qvel[:] = self.traj.qvel[frame]
+        state = np.empty(mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+        mujoco.mj_getState(self.model, d, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        return state
+
+    def run(self, start_frames: list[int], nstep: int) -> list[Rollout]:
+        """Batched replays of `nstep` physics steps from each start frame."""
+        m, nq = self.model, self.model.nq
+        init = np.stack([self.initial_state(k) for k in start_frames])
+        ctrl = np.stack([self.controls(k, nstep) for k in start_frames])
+        state, sensors = mujoco.rollout.rollout(m, self.data, init, ctrl)
+        return [self._measure(k, nstep, state[b, :, 1 : 1 + nq], sensors[b]) for b, k in enumerate(start_frames)]
+
+    def _measure(self, start_frame: int, nstep: int, qpos: np.ndarray, sensors: np.ndarray) -> Rollout:
+        s, tr = self.settings, self.traj
+        frac = self._frac(start_frame, nstep, offset=1.0)  # state after step i is at time (i + 1) dt
+        base_ref = _interp(tr.qpos[:, :3], frac)
+        quat_ref = _interp_quat(tr.qpos[:, 3:7], frac)
+        angle = np.linalg.norm(quat_error(quat_ref, qpos[:, 3:7]), axis=-1)
+        fallen = np.flatnonzero((base_ref[:, 2] - qpos[:, 2] > s.fall_height) | (angle > s.fall_angle))
+        end = int(fallen[0]) if len(fallen) else nstep
+        upto = slice(0, max(end, 1))
+        joint_err = qpos[upto, 7:] - _interp(tr.qpos[:, 7:], frac)[upto]
+        base_err = np.linalg.norm(qpos[upto, :3] - base_ref[upto], axis=-1)
+        # Sensors are evaluated before each step integrates: sensordata[i] is the state at time i dt.
+        feet = sensors[upto][:, self.layout.ee_pos[self.foot_sensor]]
+        feet_ref = _interp(tr.ee_pos[:, self.foot_ref], self._frac(start_frame, nstep))[upto]
+        return Rollout(
+            start=start_frame * FRAME_DT,
+            duration=nstep * self.dt,
+            fall_time=float((end + 1) * self.dt) if len(fallen) else None,
+            joint_rms=float(np.sqrt(np.mean(joint_err**2))),
+            base_error=float(base_err.max()),
+            foot_error=float(np.linalg.norm(feet - feet_ref, axis=-1).max()),
+        )
+
+    def feedback(self) -> Rollout | None:
+        """The whole motion under the optimizer's own feedback law, when the record has its gains.
+
+        u = tau_ref - K_k (x (-) x_ref) (Crocoddyl's convention, Pinocchio state difference), with
+        x_ref interpolated from the frames and K_k the gains of the solver node containing t,
+        applied as pure torque through the servos. None without `knots["gains"]`.
+        """
+        k = self.traj.knots
+        if "gains" not in k or "dt" not in k or "time" not in k:
+            return None
+        tr, cfg, pm = self.traj, self.robot.config, self.robot.pin_model
+        nstep = int(round(tr.duration / self.dt))
+        frac = self._frac(0, nstep)
+        qpos_ref = np.concatenate(
+            [_interp(tr.qpos[:, :3], frac), _interp_quat(tr.qpos[:, 3:7], frac), _interp(tr.qpos[:, 7:], frac)], axis=1
+        )
+        q_ref = qpos_mj_to_pin(qpos_ref)
+        v_ref = _interp(qvel_mj_to_pin(tr.qpos, tr.qvel), frac)
+        tau_ref = tr.joint_torque[np.clip(np.floor(frac + 1e-9).astype(int), 0, tr.num_frames - 1)]
+        running = np.flatnonzero(np.asarray(k["dt"]) > 0)
+        starts = np.asarray(k["time"])[running]
+        node = running[np.clip(np.searchsorted(starts, frac * FRAME_DT + 1e-9, side="right") - 1, 0, None)]
+        gains = np.asarray(k["gains"], dtype=float)
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[:], d.qvel[:] = tr.qpos[0], tr.qvel[0]
+        qpos = np.empty((nstep, m.nq))
+        sensors = np.empty((nstep, m.nsensordata))
+        kp, kd = cfg.kp, cfg.kd
+        for i in range(nstep):
+            q = qpos_mj_to_pin(d.qpos)
+            dx = np.concatenate([pin.difference(pm, q_ref[i], q), qvel_mj_to_pin(d.qpos, d.qvel) - v_ref[i]])
+            u = tau_ref[i] - gains[node[i]] @ dx
+            d.ctrl[:] = d.qpos[7:] + (u + kd * d.qvel[6:]) / kp
+            mujoco.mj_step(m, d)
+            qpos[i], sensors[i] = d.qpos, d.sensordata
+            if i % 50 == 0 and self._fallen(qpos_ref[min(i + 1, nstep - 1)], d.qpos):
+                nstep = i + 1
+                break
+        return self._measure(0, nstep, qpos[:nstep], sensors[:nstep])
+
+    def _fallen(self, qpos_ref: np.ndarray, qpos: np.ndarray) -> bool:
+        s = self.settings
+        angle = np.linalg.norm(quat_error(qpos_ref[3:7], qpos[3:7]))
+        return bool(qpos_ref[2] - qpos[2] > s.fall_height or angle > s.fall_angle)
+
+    def full(self, chunk: float = 1.0) -> Rollout:
+        """The whole motion from its first frame, simulated in chunks until it falls."""
+        m = self.model
+        nstep, per = int(round(self.traj.duration / self.dt)), int(round(chunk / self.dt))
+        ctrl = self.controls(0, nstep)
+        state = self.initial_state(0)[None]
+        qpos, sensors, done = [], [], 0
+        while done < nstep:
+            n = min(per, nstep - done)
+            states, sens = mujoco.rollout.rollout(m, self.data, state, ctrl[None, done : done + n])
+            qpos.append(states[0, :, 1 : 1 + m.nq])
+            sensors.append(sens[0])
+            state, done = states[:, -1], done + n
+            if self._fallen(_interp(self.traj.qpos, self._frac(0, 1, offset=done))[0], qpos[-1][-1]):
+                break
+        return self._measure(0, done, np.concatenate(qpos), np.concatenate(sensors))
+
+    def windows(self) -> list[Rollout]:
+        """Windows of `settings.window` seconds from reference states, tiling the whole motion."""
+        last = self.traj.num_frames - 1
+        length = min(int(round(self.settings.window / FRAME_DT)), last)
+        starts = list(range(0, last - length + 1, length))
+        if starts[-1] + length < last:
+            starts.append(last - length)
+        return self.run(starts, int(round(length * FRAME_DT / self.dt)))

@@ -1,0 +1,218 @@
+"""Validation of a trajectory: every figure measured, compared with its limit, stored with it.
+
+`validate(robot, traj, config, task_errors)` returns the `validation` dict of the record:
+
+    {"accepted": bool, "reasons": [figures over their limit], "figures": {name: value},
+     "limits": {name: limit}, "replay_windows": [[start s, fall time s or None], ...], "time": s}
+
+A figure fails when it is not finite or exceeds its limit; a limit of None reports the figure
+without judging it. Figures and default limits are listed in `FIGURES` and docs/data.md. Task
+errors (e.g. realized vs requested speed) come from the task, with the task's own limits.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from opt2skill.data import checks
+from opt2skill.data.record import Trajectory
+from opt2skill.data.replay import Replayer, ReplaySettings
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.model.robot import Robot
+
+
+@dataclass(frozen=True)
+class Figure:
+    unit: str
+    limit: float | None
+    help: str
+
+
+# name -> unit, default limit, meaning. Order is the order of tables.
+FIGURES: dict[str, Figure] = {
+    "dynamic_gap": Figure("", 1e-6, "largest gap between shooting nodes after the solve (solver statistics)"),
+    "id_residual_knots_max": Figure("N, N m", 1e-3, "inverse-dynamics residual on the solver grid, largest"),
+    "id_residual_knots_rms": Figure("N, N m", None, "inverse-dynamics residual on the solver grid, RMS"),
+    "impulse_residual_max": Figure("N s", 1e-3, "impact-dynamics residual at impulse nodes, largest"),
+    "id_residual_frames_max": Figure("N, N m", 1e-3, "inverse-dynamics residual between 200 Hz frames, largest (impact steps excluded)"),
+    "id_residual_frames_rms": Figure("N, N m", None, "inverse-dynamics residual between 200 Hz frames, RMS (impact steps excluded)"),
+    "friction_violation": Figure("N", 1.0, "largest |f_t| - mu f_n (or -f_n) on an active sole"),
+    "cop_violation": Figure("m", 0.005, "largest distance of a centre of pressure outside its sole"),
+    "inactive_contact_force": Figure("N", 1e-6, "largest force on a contact marked inactive"),
+    "torque_violation": Figure("N m", 0.01, "largest |u| beyond the torque limit"),
+    "joint_limit_violation": Figure("rad", 0.02, "largest joint position beyond its range"),
+    "velocity_violation": Figure("rad/s", 0.5, "largest joint speed beyond the velocity limit"),
+    "foot_slip": Figure("mm", 5.0, "largest sole displacement during a stance phase"),
+    "derived_fields_error": Figure("m, m/s", 1e-6, "stored kinematic fields vs recomputed from qpos, qvel"),
+    "replay_fallen_windows": Figure("fraction", 0.0, "share of replay windows (restarted from the reference) that fall"),
+    "replay_joint_rms": Figure("rad", None, "joint error RMS in the replay windows, largest window"),
+    "replay_base_error": Figure("m", None, "base position error in the replay windows, largest"),
+    "replay_foot_error": Figure("cm", None, "sole position error in the replay windows, largest"),
+    "replay_fall_time": Figure("s", None, "full-length open-loop replay: time until it falls (None: stays up)"),
+    "replay_feedback_fallen": Figure("0/1", 0.0, "full-length replay with the solver's feedback gains falls (needs gains)"),
+    "replay_feedback_fall_time": Figure("s", None, "time until the feedback replay falls (None: stays up)"),
+    "replay_feedback_base_error": Figure("m", None, "base position error of the feedback replay, largest"),
+    "replay_feedback_foot_error": Figure("cm", None, "sole position error of the feedback replay, largest"),
+}
+
+
+@dataclass(frozen=True)
+class ValidationConfig:
+    limits: dict[str, float | None] = field(default_factory=lambda: {n: f.limit for n, f in FIGURES.items()})
+    replay: ReplaySettings = ReplaySettings()
+    cop_min_force: float = 20.0  # N: the CoP of a sole is checked where its normal force exceeds this
+
+    def with_overrides(self, overrides: dict[str, str | float | None]) -> ValidationConfig:
+        """`{"foot_slip": 3, "replay.window": 1.5, "cop_violation": "none", "cop_min_force": 10}`."""
+        limits, replay, cop_min_force = dict(self.limits), asdict(self.replay), self.cop_min_force
+        for name, raw in overrides.items():
+            if name == "cop_min_force":
+                cop_min_force = _parse_value(name, raw, float)
+            elif name.startswith("replay."):
+                key = name.removeprefix("replay.")
+                if key not in replay:
+                    raise ConfigError(f"unknown replay setting '{key}'; settings: {', '.join(replay)}")
+                replay[key] = _parse_value(name, raw, type(replay[key]))
+            elif name in limits:
+                limits[name] = None if str(raw).lower() == "none" else _parse_value(name, raw, float)
+                if limits[name] is not None and limits[name] < 0:
+                    raise ConfigError(f"limit '{name}' must be >= 0 or 'none', got {raw}")
+            else:
+                raise ConfigError(
+                    f"unknown validation limit '{name}'; limits: {', '.join(limits)}; settings: cop_min_force, "
+                    + ", ".join(f"replay.{k}" for k in replay)
+                )
+        return replace(self, limits=limits, replay=ReplaySettings(**replay), cop_min_force=cop_min_force)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"limits": dict(self.limits), "replay": asdict(self.replay), "cop_min_force": self.cop_min_force}
+
+    @classmethod
+    def from_dict(cls, raw: dict[str, Any]) -> ValidationConfig:
+        try:
+            return cls(limits={**cls().limits, **raw["limits"]}, replay=ReplaySettings(**raw["replay"]),
+                       cop_min_force=float(raw["cop_min_force"]))
+        except (KeyError, TypeError) as exc:
+            raise DataError(f"malformed validation settings {raw!r} ({exc})") from None
+
+
+def _parse_value(name: str, raw: Any, kind: type) -> Any:
+    if kind is bool:
+        text = str(raw).lower()
+        if text not in ("true", "false", "1", "0"):
+            raise ConfigError(f"'{name}' must be true or false, got {raw}")
+        return text in ("true", "1")
+    try:
+        value = kind(raw)
+    except (TypeError, ValueError):
+        raise ConfigError(f"'{name}' must be a number, got {raw!r}") from None
+    if not math.isfinite(value):
+        raise ConfigError(f"'{name}' must be finite, got {raw}")
+    return value
+
+
+def _residual_stats(residual: np.ndarray, prefix: str) -> dict[str, float]:
+    if residual.size == 0:
+        return {}
+    return {f"{prefix}_max": float(np.abs(residual).max()), f"{prefix}_rms": float(np.sqrt(np.mean(residual**2)))}
+
+
+def knot_residuals(robot: Robot, traj: Trajectory) -> dict[str, float]:
+    """Residuals on the solver grid when the record stores it (knots x, u, contact_force, dt)."""
+    k = traj.knots
+    if not all(name in k for name in ("x", "u", "contact_force", "dt")):
+        return {}
+    nq = robot.pin_model.nq
+    x, dt = np.asarray(k["x"], dtype=float), np.asarray(k["dt"], dtype=float)
+    res = checks.dynamics_residual(
+        robot, x[:-1, :nq], x[:-1, nq:], x[1:, nq:], dt, k["u"], k["contact_force"], traj.contact_names
+    )
+    impulse = dt == 0
+    out = _residual_stats(res[~impulse], "id_residual_knots")
+    if impulse.any():
+        out["impulse_residual_max"] = float(np.abs(res[impulse]).max())
+    return out
+
+
+def physical_figures(robot: Robot, traj: Trajectory, config: ValidationConfig) -> dict[str, float | None]:
+    """Every figure except the replay and the task errors."""
+    figures: dict[str, float | None] = {"dynamic_gap": traj.solver.get("dynamic_gap")}
+    figures.update(knot_residuals(robot, traj))
+    frame_res = checks.frame_dynamics_residual(robot, traj)
+    figures.update(_residual_stats(frame_res[~checks.touchdown_frames(traj.contact_active)], "id_residual_frames"))
+    figures.update(checks.contact_violations(robot, traj, config.cop_min_force))
+    figures.update(checks.limit_violations(robot, traj))
+    figures["foot_slip"] = 1e3 * checks.foot_slip(robot, traj)
+    figures["derived_fields_error"] = checks.derived_fields_error(robot, traj)
+    return figures
+
+
+def replay_figures(robot: Robot, traj: Trajectory, settings: ReplaySettings) -> tuple[dict[str, float | None], list]:
+    replayer = Replayer(robot, traj, settings)
+    windows = replayer.windows()
+    full = replayer.full()
+    figures = {
+        "replay_fallen_windows": sum(w.fall_time is not None for w in windows) / len(windows),
+        "replay_joint_rms": max(w.joint_rms for w in windows),
+        "replay_base_error": max(w.base_error for w in windows),
+        "replay_foot_error": 100.0 * max(w.foot_error for w in windows),
+        "replay_fall_time": full.fall_time,
+    }
+    feedback = replayer.feedback()
+    if feedback is not None:
+        figures.update(
+            replay_feedback_fallen=float(feedback.fall_time is not None),
+            replay_feedback_fall_time=feedback.fall_time,
+            replay_feedback_base_error=feedback.base_error,
+            replay_feedback_foot_error=100.0 * feedback.foot_error,
+        )
+    return figures, [[w.start, w.fall_time] for w in windows]
+
+
+def judge(figures: dict[str, float | None], limits: dict[str, float | None]) -> list[str]:
+    """Names of the figures that fail: not finite, or above their limit."""
+    reasons = []
+    for name, limit in limits.items():
+        value = figures.get(name)
+        if limit is None or value is None:
+            continue
+        if not math.isfinite(value) or value > limit:
+            reasons.append(name)
+    return reasons
+
+
+def validate(
+    robot: Robot,
+    traj: Trajectory,
+    config: ValidationConfig = ValidationConfig(),
+    task_errors: dict[str, dict[str, Any]] | None = None,
+) -> dict[str, Any]:
+    """Measure every figure of `traj` and decide; the result is stored as the record's `validation`."""
+    if traj.robot != robot.name:
+        raise DataError(f"trajectory is for robot '{traj.robot}', not '{robot.name}'")
+    start = time.perf_counter()
+    figures = physical_figures(robot, traj, config)
+    replay, windows = replay_figures(robot, traj, config.replay)
+    figures.update(replay)
+    limits = dict(config.limits)
+    units = {name: FIGURES[name].unit for name in figures}
+    for name, err in (task_errors or {}).items():
+        key = f"task.{name}"
+        figures[key] = float(err["value"])
+        limits[key] = None if err.get("limit") is None else float(err["limit"])
+        units[key] = str(err.get("unit", ""))
+    reasons = judge(figures, limits)
+    return {
+        "accepted": not reasons,
+        "reasons": reasons,
+        "figures": figures,
+        "limits": {name: limits.get(name) for name in figures},
+        "units": units,
+        "replay_windows": windows,
+        "time": time.perf_counter() - start,
+    }

@@ -1,0 +1,96 @@
+"""Cost terms for phase costs: small factories over Crocoddyl residuals, bound to one state and nu.
+
+A task's cost function returns `(name, cost model, weight)` triples built with these; the same
+factory works for running (nu = number of joints), impulse and terminal nodes (nu = 0 for impulses).
+Sites are named as in the robot config (`robot.config.end_effectors` values, or any MJCF site).
+"""
+
+from __future__ import annotations
+
+import crocoddyl
+import numpy as np
+import pinocchio as pin
+
+from opt2skill.model.robot import Robot
+
+
+class Terms:
+    def __init__(self, state: crocoddyl.StateMultibody, nu: int, robot: Robot):
+        self.state = state
+        self.nu = nu
+        self.robot = robot
+
+    def _site(self, site: str) -> int:
+        return self.robot.pin_frame_id(site)
+
+    @staticmethod
+    def _weighted(residual, weights) -> crocoddyl.CostModelResidual:
+        weights = np.asarray(weights, dtype=float)
+        return crocoddyl.CostModelResidual(residual.state, crocoddyl.ActivationModelWeightedQuad(weights**2), residual)
+
+    # -- regularization ------------------------------------------------------------------------
+
+    def state_reg(self, x_ref: np.ndarray, weights: np.ndarray):
+        """sum (w_i (x - x_ref)_i)^2 over the state tangent (ndx = 2 nv)."""
+        return self._weighted(crocoddyl.ResidualModelState(self.state, np.asarray(x_ref, float), self.nu), weights)
+
+    def control_reg(self, weights: np.ndarray | float, u_ref: np.ndarray | None = None):
+        u_ref = np.zeros(self.nu) if u_ref is None else np.asarray(u_ref, float)
+        residual = crocoddyl.ResidualModelControl(self.state, u_ref)
+        return self._weighted(residual, np.broadcast_to(weights, (self.nu,)))
+
+    def state_bounds(self, lb: np.ndarray, ub: np.ndarray):
+        """Quadratic barrier outside [lb, ub] on x - x_neutral (joint ranges and speed limits)."""
+        pm = self.state.pinocchio
+        x_neutral = np.concatenate([pin.neutral(pm), np.zeros(pm.nv)])
+        residual = crocoddyl.ResidualModelState(self.state, x_neutral, self.nu)
+        activation = crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(lb, ub))
+        return crocoddyl.CostModelResidual(self.state, activation, residual)
+
+    # -- task space ----------------------------------------------------------------------------
+
+    def placement(self, site: str, target: pin.SE3, weights=(1, 1, 1, 1, 1, 1)):
+        """Position and orientation of a site (residual log6 of the error, local axes)."""
+        residual = crocoddyl.ResidualModelFramePlacement(self.state, self._site(site), target, self.nu)
+        return self._weighted(residual, weights)
+
+    def translation(self, site: str, target: np.ndarray, weights=(1, 1, 1)):
+        residual = crocoddyl.ResidualModelFrameTranslation(self.state, self._site(site), np.asarray(target, float), self.nu)
+        return self._weighted(residual, weights)
+
+    def rotation(self, site: str, target: np.ndarray, weights=(1, 1, 1)):
+        residual = crocoddyl.ResidualModelFrameRotation(self.state, self._site(site), np.asarray(target, float), self.nu)
+        return self._weighted(residual, weights)
+
+    def velocity(self, site: str, target: np.ndarray, weights=(1, 1, 1, 1, 1, 1), frame=pin.LOCAL_WORLD_ALIGNED):
+        """Spatial velocity (linear, angular) of a site, by default in world-aligned axes."""
+        motion = pin.Motion(np.asarray(target, float))
+        residual = crocoddyl.ResidualModelFrameVelocity(self.state, self._site(site), motion, frame, self.nu)
+        return self._weighted(residual, weights)
+
+    def com(self, target: np.ndarray, weights=(1, 1, 1)):
+        residual = crocoddyl.ResidualModelCoMPosition(self.state, np.asarray(target, float), self.nu)
+        return self._weighted(residual, weights)
+
+    # -- contact forces ------------------------------------------------------------------------
+
+    def wrench_cone(self, frame_id: int, mu: float, box: np.ndarray, min_normal: float):
+        """Friction, centre of pressure and yaw torque of a flat contact (forces in its LOCAL frame)."""
+        cone = crocoddyl.WrenchCone(np.eye(3), mu, np.asarray(box, float), 4, True, min_normal)
+        residual = crocoddyl.ResidualModelContactWrenchCone(self.state, frame_id, cone, self.nu, True)
+        activation = crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(cone.lb, cone.ub))
+        return crocoddyl.CostModelResidual(self.state, activation, residual)
+
+    def friction_cone(self, frame_id: int, surface: np.ndarray, mu: float, min_normal: float):
+        """Coulomb cone of a point contact; `surface`'s z axis is the normal (world-aligned forces)."""
+        cone = crocoddyl.FrictionCone(np.asarray(surface, float), mu, 4, True, min_normal)
+        residual = crocoddyl.ResidualModelContactFrictionCone(self.state, frame_id, cone, self.nu, True)
+        activation = crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(cone.lb, cone.ub))
+        return crocoddyl.CostModelResidual(self.state, activation, residual)
+
+    def contact_force(self, frame_id: int, wrench: np.ndarray, weights):
+        """Track a contact force (e.g. a wiping force); `wrench` in the contact's force coordinates."""
+        wrench = np.asarray(wrench, float)
+        force = pin.Force(wrench) if len(wrench) == 6 else pin.Force(np.concatenate([wrench, np.zeros(3)]))
+        residual = crocoddyl.ResidualModelContactForce(self.state, frame_id, force, len(wrench), self.nu, True)
+        return self._weighted(residual, weights)

@@ -1,0 +1,253 @@
+"""200 Hz frames from a coarse solution: a feedback rollout of the same dynamics, or interpolation.
+
+`rollout` (the default) integrates the problem's own contact dynamics at the frame period with the
+solver's feedback policy u = u_k - K_k (x_ref(t) (-) x), x_ref interpolated between the knots and u
+clipped to the torque limits, applying the same impulses at the same instants. Every frame is then
+an exact step of Crocoddyl's contact dynamics (semi-implicit Euler at 5 ms): frame k's state,
+torque and contact wrenches give frame k+1's velocity, except across a touchdown impulse.
+
+`interpolate` keeps the knots' torques and forces and interpolates the states: cheap, but its
+frames are only as consistent as the coarse grid (docs/trajopt.md has the measured residuals).
+
+Both return world-axis wrenches on the robot at each contact point (the contact frame origin).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import crocoddyl
+import numpy as np
+import pinocchio as pin
+from scipy.optimize import nnls
+
+from opt2skill.data.record import FRAME_DT
+from opt2skill.errors import SolverError
+from opt2skill.trajopt.phases import Problem
+from opt2skill.trajopt.solver import Solution
+
+
+@dataclass
+class Frames:
+    """Frame arrays in Pinocchio's layout (converted to the record's layout by the caller)."""
+
+    q: np.ndarray  # (T, nq)
+    v: np.ndarray  # (T, nv)
+    tau: np.ndarray  # (T, nu)
+    wrench: np.ndarray  # (T, nc, 6) on the robot at each contact point, world axes
+    active: np.ndarray  # (T, nc) bool
+
+
+def contact_wrenches(data, problem: Problem, node_contacts: tuple[str, ...], out: np.ndarray) -> None:
+    """Write the world-axis wrench of each active contact of a node's data into `out` (nc, 6): the
+    force of a running node, the impulse (N s) of an impulse node.
+
+    Crocoddyl keeps 6D contact forces in the contact frame (LOCAL) and 3D ones in world-aligned axes.
+    """
+    out[:] = 0.0
+    if hasattr(data, "differential"):
+        diff = data.differential
+        dd = (diff if hasattr(diff, "multibody") else diff[0]).multibody  # Runge-Kutta: the first stage
+        forces = dd.contacts.contacts
+    else:
+        dd = data.multibody
+        forces = dd.impulses.impulses
+    for name in node_contacts:
+        f = forces[name].f.vector
+        i = problem.contact_names.index(name)
+        if problem.flat[name]:
+            R = dd.pinocchio.oMf[problem.frame_ids[name]].rotation
+            out[i, :3] = R @ f[:3]
+            out[i, 3:] = R @ f[3:]
+        else:
+            out[i, :3] = f[:3]
+
+
+def _active(problem: Problem, node_contacts: tuple[str, ...]) -> list[bool]:
+    return [name in node_contacts for name in problem.contact_names]
+
+
+def rollout(coarse: Problem, solution: Solution, cones: ContactCones | None = None) -> Frames:
+    """Feedback rollout at the frame period of the coarse problem's own dynamics around `solution`.
+
+    Each coarse running node's differential model is integrated in 5-ms semi-implicit Euler steps;
+    impulse nodes are applied at their instants. A contact that touches down is held where the foot
+    actually is at that instant (its Baumgarte reference is moved there), so the contact never pulls
+    the foot towards a foothold it missed by a few millimetres. This changes the problem's contact
+    references: extract anything else from the problem first.
+    """
+    shooting = coarse.shooting
+    state = shooting.runningModels[0].state
+    pm = state.pinocchio
+    nq = pm.nq
+    xs, us, Ks = solution.xs, solution.us, solution.K
+    nodes = coarse.nodes
+    count = int(round(coarse.duration / FRAME_DT)) + 1
+    frames = _empty_frames(coarse, nq, pm.nv, count)
+    lb = -state.pinocchio.effortLimit[6:]
+    ub = state.pinocchio.effortLimit[6:]
+    x = shooting.x0.copy()
+    frame, u = 0, None
+    for k, (node, model, data) in enumerate(zip(nodes[:-1], shooting.runningModels, shooting.runningDatas)):
+        if node.kind == "impulse":
+            model.calc(data, x)
+            x = data.xnext.copy()
+            _anchor_touchdowns(coarse, k, x)
+            continue
+        fine = crocoddyl.IntegratedActionModelEuler(model.differential, FRAME_DT)
+        fine_data = fine.createData()
+        steps = int(round(node.dt / FRAME_DT))
+        for i in range(steps):
+            x_ref = _interpolate_state(pm, xs[k], xs[k + 1], i / steps)
+            u = np.clip(us[k] - Ks[k] @ state.diff(x_ref, x), lb, ub)
+            fine.calc(fine_data, x, u)
+            if cones is not None and node.contacts and not cones.holds(fine_data, node.contacts):
+                u = np.clip(cones.project(fine, fine_data, x, u, node.contacts, ub), lb, ub)
+                fine.calc(fine_data, x, u)
+            frames.q[frame], frames.v[frame], frames.tau[frame] = x[:nq], x[nq:], u
+            contact_wrenches(fine_data, coarse, node.contacts, frames.wrench[frame])
+            frames.active[frame] = _active(coarse, node.contacts)
+            x = fine_data.xnext.copy()
+            if not np.all(np.isfinite(x)):
+                raise SolverError(f"the 200 Hz rollout diverged at t = {node.time:.3f} s")
+            frame += 1
+    terminal, tdata = shooting.terminalModel, shooting.terminalData
+    terminal.calc(tdata, x, u)
+    frames.q[frame], frames.v[frame], frames.tau[frame] = x[:nq], x[nq:], u
+    contact_wrenches(tdata, coarse, nodes[-1].contacts, frames.wrench[frame])
+    frames.active[frame] = _active(coarse, nodes[-1].contacts)
+    return frames
+
+
+class ContactCones:
+    """Friction cones and centre-of-pressure bounds of the contacts, as a rollout enforces them.
+
+    When the feedback torque would push a contact wrench out of its cone, the rollout uses the
+    torque closest to it (in torque-limit units) whose wrenches are inside: contact wrenches are
+    affine in the torque at a given state, so this is a least-distance problem (solved as NNLS,
+    Lawson and Hanson). Torques change only at those frames, and every frame stays an exact step.
+    """
+
+    def __init__(self, problem: Problem, robot_feet: dict[str, tuple[float, float]], mu: float):
+        self.problem = problem
+        self.rows = {}
+        for name in problem.contact_names:
+            if problem.flat[name]:
+                length, width = robot_feet[name]
+                cone = crocoddyl.WrenchCone(np.eye(3), mu, np.array([length, width]), 4, True, 0.0)
+            else:
+                cone = crocoddyl.FrictionCone(np.eye(3), mu, 4, True, 0.0)
+            self.rows[name] = (np.array(cone.A), np.array(cone.lb), np.array(cone.ub))
+
+    def _stack(self, contacts):
+        blocks, lower, upper = [], [], []
+        for name in contacts:
+            A, lb, ub = self.rows[name]
+            blocks.append(A)
+            lower.append(lb)
+            upper.append(ub)
+        size = sum(b.shape[1] for b in blocks)
+        A = np.zeros((sum(b.shape[0] for b in blocks), size))
+        r = c = 0
+        for b in blocks:
+            A[r : r + b.shape[0], c : c + b.shape[1]] = b
+            r, c = r + b.shape[0], c + b.shape[1]
+        return A, np.concatenate(lower), np.concatenate(upper)
+
+    @staticmethod
+    def _forces(data, contacts) -> np.ndarray:
+        forces = data.differential.multibody.contacts.contacts
+        return np.concatenate([forces[n].f.vector[: forces[n].Jc.shape[0]] for n in contacts])
+
+    def holds(self, data, contacts) -> bool:
+        A, lb, ub = self._stack(contacts)
+        r = A @ self._forces(data, contacts)
+        return bool(np.all(r <= ub + 1e-9) and np.all(r >= lb - 1e-9))
+
+    def project(self, model, data, x, u, contacts, limits) -> np.ndarray:
+        model.differential.calcDiff(data.differential, x, u)
+        A, lb, ub = self._stack(contacts)
+        f0 = self._forces(data, contacts)
+        G = A @ data.differential.df_du  # cone rows per unit torque
+        r0 = A @ f0
+        if not (np.all(np.isfinite(G)) and np.all(np.isfinite(r0))):
+            return u
+        finite_ub, finite_lb = np.isfinite(ub), np.isfinite(lb)
+        # P du <= e, in z = du / limits: least distance to the polyhedron {P' z <= e}
+        P = np.vstack([G[finite_ub], -G[finite_lb]]) * limits
+        e = np.concatenate([ub[finite_ub] - r0[finite_ub], r0[finite_lb] - lb[finite_lb]])
+        E = np.vstack([-P.T, -e[None, :]])  # LDP as NNLS: min |E w - [0..0, 1]|, w >= 0
+        target = np.zeros(E.shape[0])
+        target[-1] = 1.0
+        w, _ = nnls(E, target, maxiter=50 * E.shape[1])
+        residual = E @ w - target
+        if abs(residual[-1]) < 1e-12:  # empty polyhedron: keep the feedback torque
+            return u
+        z = -residual[:-1] / residual[-1]
+        return u + z * limits
+
+
+def _anchor_touchdowns(problem: Problem, k: int, x: np.ndarray) -> None:
+    """Move the contact references of the contacts starting at impulse node k to where they are."""
+    shooting = problem.shooting
+    impulse_data = shooting.runningDatas[k]
+    oMf = impulse_data.multibody.pinocchio.oMf
+    for name in problem.nodes[k].contacts:
+        placement = oMf[problem.frame_ids[name]].copy()
+        models = list(shooting.runningModels[k + 1 :]) + [shooting.terminalModel]
+        for node, model in zip(problem.nodes[k + 1 :], models):
+            if node.kind == "impulse":  # another contact touching down: this one stays
+                continue
+            if name not in node.contacts:
+                break
+            contact = model.differential.contacts.contacts[name].contact
+            if problem.flat[name]:
+                contact.reference = placement
+            else:
+                contact.reference = placement.translation
+
+
+def _interpolate_state(pm: pin.Model, xa: np.ndarray, xb: np.ndarray, s: float) -> np.ndarray:
+    nq = pm.nq
+    return np.concatenate([pin.interpolate(pm, xa[:nq], xb[:nq], s), (1 - s) * xa[nq:] + s * xb[nq:]])
+
+
+def interpolate(coarse: Problem, solution: Solution) -> Frames:
+    """Frames between the knots: states interpolated on the configuration manifold, torques and
+    contact wrenches held from the knot that starts each interval."""
+    shooting = coarse.shooting
+    pm = shooting.runningModels[0].state.pinocchio
+    nq = pm.nq
+    xs = solution.xs
+    shooting.calc(list(xs), solution.us)
+    count = int(round(coarse.duration / FRAME_DT)) + 1
+    frames = _empty_frames(coarse, nq, pm.nv, count)
+    running = [i for i, n in enumerate(coarse.nodes) if n.kind == "running"]
+    j = 0
+    for frame in range(count - 1):
+        t = frame * FRAME_DT
+        while j + 1 < len(running) and coarse.nodes[running[j + 1]].time <= t + 1e-9:
+            j += 1
+        k = running[j]
+        node = coarse.nodes[k]
+        x = _interpolate_state(pm, xs[k], xs[k + 1], (t - node.time) / node.dt)
+        frames.q[frame], frames.v[frame], frames.tau[frame] = x[:nq], x[nq:], solution.us[k]
+        contact_wrenches(shooting.runningDatas[k], coarse, node.contacts, frames.wrench[frame])
+        frames.active[frame] = _active(coarse, node.contacts)
+    last, u_last = coarse.nodes[-1], solution.us[running[-1]]
+    shooting.terminalModel.calc(shooting.terminalData, xs[-1], u_last)
+    frames.q[-1], frames.v[-1], frames.tau[-1] = xs[-1][:nq], xs[-1][nq:], u_last
+    contact_wrenches(shooting.terminalData, coarse, last.contacts, frames.wrench[-1])
+    frames.active[-1] = _active(coarse, last.contacts)
+    return frames
+
+
+def _empty_frames(problem: Problem, nq: int, nv: int, count: int) -> Frames:
+    nc = len(problem.contact_names)
+    return Frames(
+        q=np.empty((count, nq)),
+        v=np.empty((count, nv)),
+        tau=np.zeros((count, problem.nu)),
+        wrench=np.zeros((count, nc, 6)),
+        active=np.zeros((count, nc), bool),
+    )

@@ -1,0 +1,157 @@
+"""Dataset generation: one solve per process, every outcome recorded, resumable after a kill.
+
+The driver samples the parameters of trajectory i with `ParamSpace.sample(seed, i)`, sends jobs to
+a backend (a process pool here, Ray in `ray_backend`), and writes each result as it arrives into a
+`DatasetStore` (atomic per-trajectory files). Rerunning the same command skips every index already
+recorded; a larger --n adds the missing indices; other settings into the same directory are an
+error naming the difference. Only the `Task` interface and the registry are used.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from opt2skill.data.store import ACCEPTED, FAILED, REJECTED, DatasetStore, Outcome
+from opt2skill.data.summary import summarize
+from opt2skill.data.validate import ValidationConfig
+from opt2skill.errors import ConfigError
+from opt2skill.provenance import provenance
+from opt2skill.trajopt.jobs import Job, Result, failure, run_job
+from opt2skill.trajopt.process_pool import run_jobs
+
+SUMMARY_EVERY = 10.0  # s between summary rewrites during a run (and once at the end)
+
+
+@dataclass(frozen=True)
+class GenerateRequest:
+    task: str
+    n: int
+    seed: int = 0
+    out: Path = Path("data")
+    robot: str = "digit"
+    workers: int = 0  # 0: every CPU (process pool) or every CPU of the cluster (Ray)
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)  # --set name=lo:hi
+    limits: dict[str, Any] = field(default_factory=dict)  # validation limit overrides
+    keep_gains: bool = False
+    retry_failed: bool = False
+    timeout: float | None = None  # s per trajectory; None: no limit
+    ray: bool = False
+    ray_address: str | None = None
+    command: str = ""
+
+
+def process_results(jobs: list[Job], workers: int, timeout: float | None) -> Iterator[Result]:
+    """Results in completion order from `workers` processes (a crash or a timeout costs one item)."""
+    return run_jobs(run_job, jobs, workers, timeout, failure)
+
+
+def _parse_task(request: GenerateRequest):
+    """Robot, task, parameter space (with --set ranges) and validation config; errors before any work."""
+    from opt2skill.model import load_robot
+    from opt2skill.trajopt.registry import get_task
+
+    robot = load_robot(request.robot)
+    task = get_task(request.task, robot, _overrides(request))
+    space = task.param_space()
+    for name, bounds in request.ranges.items():
+        space.set_range(name, bounds)
+    config = ValidationConfig().with_overrides(request.limits)
+    return robot, space, config
+
+
+def _overrides(request: GenerateRequest) -> dict[str, Any]:
+    # Gains are always computed (free in DDP) for the feedback replay of validation; the store
+    # drops them unless --keep-gains.
+    return {"solver.keep_gains": True}
+
+
+def generate(request: GenerateRequest, progress: bool = True) -> dict[str, Any]:
+    """Generate (or resume) the dataset of `request`; returns its summary."""
+    if request.n < 0:
+        raise ConfigError(f"--n must be >= 0, got {request.n}")
+    if request.timeout is not None and request.timeout <= 0:
+        raise ConfigError(f"--timeout must be > 0 seconds, got {request.timeout:g}")
+    os.environ["OMP_NUM_THREADS"] = "1"  # inherited by every worker before it loads Crocoddyl
+    robot, space, config = _parse_task(request)
+    identity = {
+        "task": request.task,
+        "robot": robot.name,
+        "robot_hash": robot.hash,
+        "seed": request.seed,
+        "ranges": {name: list(bounds) for name, bounds in space.ranges.items()},
+        "validation": config.as_dict(),
+        "keep_gains": request.keep_gains,
+    }
+    workers = request.workers or (os.cpu_count() or 1)
+    run = {
+        "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "command": request.command,
+        "n": request.n,
+        "workers": workers,
+        "backend": "ray" if request.ray else "process",
+        "provenance": provenance(robot.hash),
+    }
+    store = DatasetStore(request.out)
+    with store.lock():
+        _, outcomes = store.prepare(identity, run)
+        redo = {FAILED} if request.retry_failed else set()
+        todo = [i for i in range(request.n) if i not in outcomes or outcomes[i].status in redo]
+        jobs = [
+            Job(request.task, request.robot, _overrides(request), i, request.seed, space.sample(request.seed, i),
+                config.as_dict(), request.command)
+            for i in todo
+        ]
+        requested = max(request.n, max(outcomes, default=-1) + 1)
+        if request.ray:
+            from opt2skill.trajopt.ray_backend import ray_results
+
+            results = ray_results(jobs, request.workers, request.ray_address, request.timeout)
+        else:
+            results = process_results(jobs, min(workers, max(len(jobs), 1)), request.timeout)
+        drop = () if request.keep_gains else ("gains",)
+        bar = _progress(request.task, len(jobs), len(outcomes), progress)
+        last_summary = time.monotonic()
+        try:
+            for result in results:
+                outcome = result.outcome
+                if result.traj is not None:
+                    store.write_trajectory(outcome, result.traj, drop_knots=drop)
+                else:
+                    store.write_failure(outcome)
+                outcomes[outcome.index] = outcome
+                _advance(bar, outcomes)
+                if time.monotonic() - last_summary > SUMMARY_EVERY:
+                    store.write_summary(summarize(outcomes, identity, requested))
+                    last_summary = time.monotonic()
+        finally:
+            results.close()
+            if bar is not None:
+                bar.close()
+            summary = summarize(dict(sorted(outcomes.items())), identity, requested)
+            store.write_summary(summary)
+    return summary
+
+
+def _progress(task: str, total: int, done_before: int, enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    desc = f"{task}" + (f" ({done_before} done before)" if done_before else "")
+    return tqdm(total=total, desc=desc, unit="traj", dynamic_ncols=True, smoothing=0.1)
+
+
+def _advance(bar, outcomes: dict[int, Outcome]) -> None:
+    if bar is None:
+        return
+    counts = {s: 0 for s in (ACCEPTED, REJECTED, FAILED)}
+    for o in outcomes.values():
+        counts[o.status] += 1
+    bar.set_postfix(counts, refresh=False)
+    bar.update(1)

@@ -1,0 +1,273 @@
+"""Phase-based problems: a motion is a sequence of phases, each with its own contacts and costs.
+
+Every task (walking, stairs, pickup, reaching with an elbow contact, wiping, door pushing) describes
+its motion as `Phase`s; `ProblemBuilder` turns them into a Crocoddyl shooting problem:
+
+- one running node per solver step, with contact forward dynamics
+  (`DifferentialActionModelContactFwdDynamics`) of exactly the phase's contacts (one contact model
+  per phase: deactivating contacts inside one model stops FDDP, crocoddyl issue 1250);
+- an impulse node where a contact starts (the touchdown impact), when impacts are enabled;
+- a terminal node with the last phase's contacts;
+- at every node the task's costs (`Phase.costs`) plus the physical limits every task shares: wrench
+  cone (friction and centre of pressure) of each stance contact, joint position and velocity ranges.
+
+Building without costs (`with_costs=False`) gives the same dynamics for rollouts at another step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import crocoddyl
+import numpy as np
+import pinocchio as pin
+
+from opt2skill.data.record import FRAME_DT
+from opt2skill.errors import ConfigError
+from opt2skill.model.robot import Robot
+from opt2skill.trajopt.costs import Terms
+from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights
+
+
+@dataclass(frozen=True)
+class Contact:
+    """An active contact: an end effector held at a planned placement (the Baumgarte reference).
+
+    `flat` contacts (feet) are 6D with a wrench cone over the sole; others are 3D point contacts
+    with a friction cone whose normal is the placement's z axis.
+    """
+
+    name: str
+    placement: pin.SE3
+    flat: bool = True
+
+
+@dataclass(frozen=True)
+class Knot:
+    """Where a node sits, handed to the task's cost function."""
+
+    time: float  # absolute time of the node (s)
+    phase_index: int
+    phase_time: float  # time since the phase started
+    kind: str  # "running", "impulse" or "terminal"
+
+
+CostFunction = Callable[[Knot, Terms], list]
+
+
+@dataclass
+class Phase:
+    duration: float
+    contacts: tuple[Contact, ...]
+    costs: CostFunction  # (knot, terms) -> list of (name, cost model, weight)
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class Node:
+    time: float
+    dt: float  # 0 for impulse and terminal nodes
+    kind: str
+    phase_index: int
+    contacts: tuple[str, ...]  # active contacts (for impulse nodes: the contacts that touch down)
+
+
+@dataclass
+class Problem:
+    """A shooting problem and the timeline of its nodes (running and impulse, then terminal)."""
+
+    shooting: crocoddyl.ShootingProblem
+    nodes: list[Node]
+    dt: float
+    contact_names: tuple[str, ...]  # every contact that appears, in a fixed order
+    frame_ids: dict[str, int]  # Pinocchio frame of each contact
+    flat: dict[str, bool]  # 6D (True) or 3D contact
+    nu: int
+    phases: list[Phase] = field(repr=False, default_factory=list)
+    # node index -> a terminal model with that node's contacts and costs (ends of receding windows)
+    end_model: Callable[[int], object] | None = field(repr=False, default=None)
+
+    @property
+    def duration(self) -> float:
+        return self.nodes[-1].time
+
+
+class ProblemBuilder:
+    """Builds Crocoddyl problems from phases for one robot with one set of contact/limit settings."""
+
+    def __init__(self, robot: Robot, contact: ContactSettings, feasibility: FeasibilityWeights):
+        self.robot = robot
+        self.contact = contact
+        self.feasibility = feasibility
+        self.state = crocoddyl.StateMultibody(robot.pin_model)
+        self.actuation = crocoddyl.ActuationModelFloatingBase(self.state)
+        self.nu = self.actuation.nu
+        self._limit_bounds = self._joint_limit_bounds()
+
+    def frame_id(self, contact_name: str) -> int:
+        return self.robot.pin_frame_id(self.robot.config.end_effectors[contact_name])
+
+    def build(
+        self, phases: list[Phase], x0: np.ndarray, dt: float, *, with_costs: bool = True, integrator: str = "euler"
+    ) -> Problem:
+        if not phases:
+            raise ConfigError("a problem needs at least one phase")
+        nodes: list[Node] = []
+        models = []
+        t = 0.0
+        previous: set[str] = set()
+        phase_start = []
+        for index, phase in enumerate(phases):
+            phase_start.append(t)
+            durations = self._discretize(phase, index, dt)
+            names = {c.name for c in phase.contacts}
+            starting = [c for c in phase.contacts if c.name not in previous]
+            if index > 0 and starting and self.contact.impacts:
+                knot = Knot(t, index, 0.0, "impulse")
+                models.append(self._impulse_model(starting, phase, knot, with_costs))
+                nodes.append(Node(t, 0.0, "impulse", index, tuple(c.name for c in starting)))
+            offset = 0.0
+            for node_dt in durations:
+                knot = Knot(t + offset, index, offset, "running")
+                models.append(self._running_model(phase, knot, node_dt, with_costs, integrator))
+                nodes.append(Node(knot.time, node_dt, "running", index, tuple(sorted(names))))
+                offset += node_dt
+            t = round((t + phase.duration) / FRAME_DT) * FRAME_DT
+            previous = names
+        last = phases[-1]
+        knot = Knot(t, len(phases) - 1, last.duration, "terminal")
+        terminal = self._running_model(last, knot, 0.0, with_costs)
+        nodes.append(Node(t, 0.0, "terminal", len(phases) - 1, tuple(sorted(c.name for c in last.contacts))))
+        flat: dict[str, bool] = {}
+        for phase in phases:
+            for c in phase.contacts:
+                if flat.setdefault(c.name, c.flat) != c.flat:
+                    raise ConfigError(f"contact '{c.name}' is flat in one phase and a point in another")
+        shooting = crocoddyl.ShootingProblem(np.asarray(x0, dtype=float), models, terminal)
+
+        def end_model(i: int):
+            node = nodes[i]
+            phase = phases[node.phase_index]
+            start = node.time - (node.time - phase_start[node.phase_index])
+            knot = Knot(node.time, node.phase_index, node.time - start, "running")
+            return self._running_model(phase, knot, 0.0, with_costs, integrator)
+
+        return Problem(
+            shooting=shooting,
+            nodes=nodes,
+            dt=dt,
+            contact_names=tuple(flat),
+            frame_ids={name: self.frame_id(name) for name in flat},
+            flat=flat,
+            nu=self.nu,
+            phases=list(phases),
+            end_model=end_model,
+        )
+
+    @staticmethod
+    def _discretize(phase: Phase, index: int, dt: float) -> list[float]:
+        """Node durations of a phase: about `dt` each, whole frame periods each, at least one node.
+
+        Phase durations must be multiples of the frame period, so every phase switch (and impulse)
+        and every node falls on a 200 Hz frame.
+        """
+        frames = phase.duration / FRAME_DT
+        if phase.duration <= 0 or abs(frames - round(frames)) > 1e-6:
+            raise ConfigError(
+                f"phase {index} ('{phase.label}') lasts {phase.duration:g} s, "
+                f"not a positive multiple of the frame period {FRAME_DT:g} s"
+            )
+        frames = int(round(frames))
+        steps = min(max(1, int(round(phase.duration / dt))), frames)
+        sizes = [frames // steps + (1 if i < frames % steps else 0) for i in range(steps)]
+        return [size * FRAME_DT for size in sizes]
+
+    # -- nodes ---------------------------------------------------------------------------------
+
+    def _running_model(self, phase: Phase, knot: Knot, dt: float, with_costs: bool, integrator: str = "euler"):
+        contacts = crocoddyl.ContactModelMultiple(self.state, self.nu)
+        for c in phase.contacts:
+            contacts.addContact(c.name, self._contact_model(c))
+        costs = crocoddyl.CostModelSum(self.state, self.nu)
+        if with_costs:
+            terms = Terms(self.state, self.nu, self.robot)
+            for name, cost, weight in phase.costs(knot, terms):
+                costs.addCost(name, cost, weight)
+            self._add_limits(costs, phase.contacts, terms, knot.kind if dt > 0 else "terminal")
+        dam = crocoddyl.DifferentialActionModelContactFwdDynamics(self.state, self.actuation, contacts, costs, 0.0, True)
+        if with_costs:  # the optimizer keeps a torque margin for feedback; rollouts use the full range
+            limit = self.robot.config.torque_limit * self.feasibility.torque_limit_scale
+            dam.u_lb, dam.u_ub = -limit, limit
+        if integrator == "euler" or dt == 0.0:
+            return crocoddyl.IntegratedActionModelEuler(dam, dt)
+        rk = {"rk2": crocoddyl.RKType.two, "rk3": crocoddyl.RKType.three, "rk4": crocoddyl.RKType.four}[integrator]
+        return crocoddyl.IntegratedActionModelRK(dam, rk, dt)
+
+    def _impulse_model(self, starting: list[Contact], phase: Phase, knot: Knot, with_costs: bool):
+        impulses = crocoddyl.ImpulseModelMultiple(self.state)
+        for c in starting:
+            fid = self.frame_id(c.name)
+            if c.flat:
+                impulse = crocoddyl.ImpulseModel6D(self.state, fid, pin.LOCAL)
+            else:
+                impulse = crocoddyl.ImpulseModel3D(self.state, fid, pin.LOCAL_WORLD_ALIGNED)
+            impulses.addImpulse(c.name, impulse)
+        costs = crocoddyl.CostModelSum(self.state, 0)
+        if with_costs:
+            terms = Terms(self.state, 0, self.robot)
+            for name, cost, weight in phase.costs(knot, terms):
+                costs.addCost(name, cost, weight)
+        model = crocoddyl.ActionModelImpulseFwdDynamics(self.state, impulses, costs)
+        model.JMinvJt_damping = 1e-12
+        model.r_coeff = 0.0  # fully plastic touchdown: the contact point stops
+        return model
+
+    def _contact_model(self, c: Contact):
+        fid = self.frame_id(c.name)
+        gains = np.array([self.contact.baumgarte_kp, self.contact.baumgarte_kd])
+        if c.flat:
+            return crocoddyl.ContactModel6D(self.state, fid, c.placement, pin.LOCAL, self.nu, gains)
+        return crocoddyl.ContactModel3D(
+            self.state, fid, c.placement.translation, pin.LOCAL_WORLD_ALIGNED, self.nu, gains
+        )
+
+    # -- limits shared by every task --------------------------------------------------------------
+
+    def _add_limits(self, costs, contacts: tuple[Contact, ...], terms: Terms, kind: str) -> None:
+        weights = self.feasibility
+        if weights.joint_limits > 0:
+            lb, ub = self._limit_bounds
+            costs.addCost("joint_limits", terms.state_bounds(lb, ub), weights.joint_limits)
+        if weights.wrench_cone <= 0 or kind == "terminal":
+            return
+        mu = self.robot.config.friction_coefficient * self.contact.friction_scale
+        for c in contacts:
+            fid = self.frame_id(c.name)
+            if c.flat:
+                foot = self._foot(c.name)
+                box = np.array([2 * foot.half_length, 2 * foot.half_width]) * self.contact.cop_scale
+                cost = terms.wrench_cone(fid, mu, box, self.contact.min_normal_force)
+            else:
+                cost = terms.friction_cone(fid, c.placement.rotation, mu, self.contact.min_normal_force)
+            costs.addCost(f"{c.name}_cone", cost, weights.wrench_cone)
+
+    def _foot(self, contact_name: str):
+        site = self.robot.config.end_effectors[contact_name]
+        for foot in self.robot.config.feet:
+            if foot.sole_site == site:
+                return foot
+        raise ConfigError(f"flat contact '{contact_name}' is not a foot of robot '{self.robot.name}'")
+
+    def _joint_limit_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds on the state residual x - x_neutral: joint ranges (with margin) and speed limits."""
+        pm = self.robot.pin_model
+        w = self.feasibility
+        nv = pm.nv
+        lb = np.full(2 * nv, -np.inf)
+        ub = np.full(2 * nv, np.inf)
+        lb[6:nv] = pm.lowerPositionLimit[7:] + w.joint_limit_margin
+        ub[6:nv] = pm.upperPositionLimit[7:] - w.joint_limit_margin
+        lb[nv + 6 :] = -pm.velocityLimit[6:] * w.velocity_limit_scale
+        ub[nv + 6 :] = pm.velocityLimit[6:] * w.velocity_limit_scale
+        return lb, ub

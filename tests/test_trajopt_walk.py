@@ -1,0 +1,83 @@
+"""A short real walk (4 steps): dynamics, limits, contacts, standing start and end, task checks."""
+
+import numpy as np
+import pytest
+
+from opt2skill.data.checks import frame_dynamics_residual, site_poses, touchdown_frames
+from opt2skill.model import load_robot
+from opt2skill.trajopt.registry import get_task
+
+PARAMS = dict(speed=0.6, clearance=0.12, step_duration=0.36, double_support=0.2, lateral_speed=0.0,
+              yaw_rate=0.0, height_offset=-0.02)
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("digit")
+
+
+@pytest.fixture(scope="module")
+def walk(robot):
+    task = get_task("walk", robot, {"steps": 4, "duration": 3.0})
+    return task, task.solve(PARAMS, seed=11)
+
+
+def test_walk_frames_satisfy_the_equations_of_motion(robot, walk):
+    _, traj = walk
+    residual = np.abs(frame_dynamics_residual(robot, traj)).max(axis=1)
+    impacts = touchdown_frames(traj.contact_active)
+    assert impacts.sum() == 4  # one touchdown per step
+    assert residual[~impacts].max() < 1e-6
+    assert traj.solver["dynamic_gap"] < 1e-6
+
+
+def test_walk_respects_torque_and_joint_limits(robot, walk):
+    _, traj = walk
+    assert np.all(np.abs(traj.joint_torque) <= robot.config.torque_limit + 1e-9)
+    pm = robot.pin_model
+    q = traj.qpos[:, 7:]
+    assert np.all(q >= pm.lowerPositionLimit[7:]) and np.all(q <= pm.upperPositionLimit[7:])
+
+
+def test_contact_wrenches_stay_in_friction_cones_and_soles(robot, walk):
+    _, traj = walk
+    mu = robot.config.friction_coefficient
+    f = traj.contact_wrench[traj.contact_active]
+    assert f[:, 2].min() >= 0.0
+    assert np.all(np.linalg.norm(f[:, :2], axis=1) <= mu * f[:, 2] + 1e-6)
+    loaded = f[f[:, 2] > 20.0]
+    foot = robot.config.feet[0]
+    # Soles stay flat and face forward (no yaw here), so world axes are sole axes.
+    assert np.all(np.abs(loaded[:, 4]) <= foot.half_length * loaded[:, 2] + 1e-6)
+    assert np.all(np.abs(loaded[:, 3]) <= foot.half_width * loaded[:, 2] + 1e-6)
+    assert np.abs(traj.contact_wrench[~traj.contact_active]).max() == 0.0
+
+
+def test_stance_feet_do_not_slip(robot, walk):
+    _, traj = walk
+    for c, name in enumerate(traj.contact_names):
+        foot = next(f for f in robot.config.feet if f.sole_site == robot.config.end_effectors[name])
+        pos, _ = site_poses(robot, traj.qpos, [foot.sole_site, *foot.corner_sites])
+        active = traj.contact_active[:, c].astype(np.int8)
+        starts = np.flatnonzero(np.diff(np.concatenate([[0], active])) == 1)
+        stops = np.flatnonzero(np.diff(np.concatenate([active, [0]])) == -1) + 1
+        assert len(starts) >= 2  # it stepped
+        for a, b in zip(starts, stops):
+            assert np.linalg.norm(pos[a:b] - pos[a], axis=-1).max() < 2e-3
+
+
+def test_walk_starts_and_ends_standing_and_steps_in_between(walk):
+    _, traj = walk
+    assert traj.contact_active[0].all() and traj.contact_active[-1].all()
+    assert np.abs(traj.qvel[0]).max() == 0.0 and np.abs(traj.qvel[-1]).max() < 0.05
+    single = traj.contact_active.sum(axis=1) == 1
+    assert traj.contact_active[single, 0].any() and traj.contact_active[single, 1].any()
+    assert traj.qpos[-1, 0] - traj.qpos[0, 0] > 0.3  # it went forward
+
+
+def test_walk_meets_its_requested_speed_and_clearance(walk):
+    task, traj = walk
+    errors = task.task_errors(traj)
+    assert set(errors) == {"speed_error", "clearance_error"}
+    for error in errors.values():
+        assert 0.0 <= error["value"] < error["limit"]
