@@ -6,7 +6,7 @@ import sys
 
 import typer
 
-from opt2skill.cli import data, robot
+from opt2skill.cli import data, render, robot
 from opt2skill.cli.console import err_console
 from opt2skill.errors import Opt2SkillError
 
@@ -18,6 +18,7 @@ app = typer.Typer(
 )
 app.add_typer(robot.app, name="robot")
 app.add_typer(data.app)  # generate, validate, inspect
+app.add_typer(render.app)  # render
 
 
 @app.command()
