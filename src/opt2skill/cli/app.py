@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
 import typer
 
-from opt2skill.cli import data, render, robot
+from opt2skill.cli import data, render, robot, train
+from opt2skill.cli import eval as evaluation
 from opt2skill.cli.console import err_console
 from opt2skill.errors import Opt2SkillError
 
@@ -19,17 +21,27 @@ app = typer.Typer(
 app.add_typer(robot.app, name="robot")
 app.add_typer(data.app)  # generate, validate, inspect
 app.add_typer(render.app)  # render
+app.add_typer(train.app)  # train, play
+app.add_typer(evaluation.app)  # eval, compare, sweep, export, deploy-sim
 
 
 @app.command()
 def demo(
+    out: Path = typer.Option(Path("demo"), help="Where every output goes (rerunning resumes)."),
     robot_name: str = typer.Option("digit", "--robot", help="Built-in robot name, or path to a robot.yaml."),
+    task: str = typer.Option("walk", help="Task of the references."),
+    n_train: int = typer.Option(3, "--n-train", help="Training references."),
+    n_test: int = typer.Option(2, "--n-test", help="Held-out references (another seed)."),
+    train_steps: int = typer.Option(30_000, "--train-steps", help="PPO environment steps."),
+    num_envs: int = typer.Option(32, "--num-envs", help="Simulated worlds while training."),
+    workers: int = typer.Option(0, min=0, help="Generation processes (0: every core)."),
+    fps: int = typer.Option(20, min=1, max=60, help="Frames per second of the video."),
 ) -> None:
-    """Run the main job on the built-in defaults (for now: load the robot and hold it standing 5 s)."""
-    from opt2skill.model import load_robot
+    """The whole pipeline, small and fast: references, training, evaluation, ONNX, 2 kHz player, video."""
+    from opt2skill.cli.demo import DemoSettings, run_demo
 
-    loaded = load_robot(robot_name)
-    robot.print_standing(loaded, seconds=5.0)
+    run_demo(DemoSettings(out=out, robot=robot_name, task=task, n_train=n_train, n_test=n_test,
+                          train_steps=train_steps, num_envs=num_envs, workers=workers, fps=fps))
 
 
 def main() -> None:

@@ -34,6 +34,10 @@ class ReplaySettings:
     fall_height: float = 0.25  # m: fallen when the base is this much lower than the reference
     fall_angle: float = 0.5  # rad: fallen when the base orientation is this far from the reference
     velocity_reference: bool = True  # PD on (qd_ref - qd) rather than on -qd
+    # The motors also supply the MuJoCo joints' damping and friction loss, which the rigid-body
+    # reference torques leave out (docs/data.md): D qd + f tanh(qd / friction_smoothing).
+    joint_losses: bool = True
+    friction_smoothing: float = 0.05  # rad/s
 
 
 @dataclass(frozen=True)
@@ -76,6 +80,8 @@ class Replayer:
         feet = [f.name for f in robot.config.feet]
         self.foot_sensor = [self.layout.ee_names.index(n) for n in feet]
         self.foot_ref = [traj.ee_names.index(n) for n in feet]
+        self.damping = self.model.dof_damping[6:].copy()
+        self.frictionloss = self.model.dof_frictionloss[6:].copy()
 
     def _frac(self, start_frame: int, nstep: int, offset: float = 0.0) -> np.ndarray:
         """Fractional frame index at each physics step (plus `offset` steps)."""
@@ -86,9 +92,18 @@ class Replayer:
         frac = self._frac(start_frame, nstep)
         q_ref = _interp(tr.qpos[:, 7:], frac)
         tau = tr.joint_torque[np.clip(np.floor(frac + 1e-9).astype(int), 0, tr.num_frames - 1)]
+        qd_ref = _interp(tr.qvel[:, 6:], frac)
+        tau = tau + self._joint_losses(qd_ref)
         if self.settings.velocity_reference:
-            tau = tau + cfg.kd * _interp(tr.qvel[:, 6:], frac)
+            tau = tau + cfg.kd * qd_ref
         return q_ref + tau / cfg.kp
+
+    def _joint_losses(self, qd: np.ndarray) -> np.ndarray:
+        """Torque the motors add to overcome the joints' damping and friction loss at speed qd."""
+        if not self.settings.joint_losses:
+            return np.zeros_like(qd)
+        s = self.settings.friction_smoothing
+        return self.damping * qd + self.frictionloss * np.tanh(qd / s)
 
     def initial_state(self, frame: int) -> np.ndarray:
         d = self.data
@@ -162,7 +177,7 @@ class Replayer:
         for i in range(nstep):
             q = qpos_mj_to_pin(d.qpos)
             dx = np.concatenate([pin.difference(pm, q_ref[i], q), qvel_mj_to_pin(d.qpos, d.qvel) - v_ref[i]])
-            u = tau_ref[i] - gains[node[i]] @ dx
+            u = tau_ref[i] - gains[node[i]] @ dx + self._joint_losses(d.qvel[6:])
             d.ctrl[:] = d.qpos[7:] + (u + kd * d.qvel[6:]) / kp
             mujoco.mj_step(m, d)
             qpos[i], sensors[i] = d.qpos, d.sensordata

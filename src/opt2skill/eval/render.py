@@ -18,16 +18,23 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import ConfigError
 from opt2skill.model.mujoco_model import load_spec
 from opt2skill.model.robot import Robot
+from opt2skill.sim.scene import TerrainScene
+from opt2skill.sim.terrain import Terrain
 
 GHOST_RGBA = (0.2, 0.7, 1.0, 0.3)
 GHOST_PREFIX = "ghost/"
 
 
-def scene_model(robot: Robot, ghost: bool, add_terrain: Callable[[mujoco.MjSpec], None] | None = None) -> mujoco.MjModel:
-    """The robot on its floor (or on a terrain added by `add_terrain`), plus a non-colliding ghost."""
+def scene_model(robot: Robot, ghost: bool, add_terrain: Callable[[mujoco.MjSpec], None] | None = None,
+                terrain: Terrain | None = None) -> mujoco.MjModel:
+    """The robot on its floor (or on a terrain added by `add_terrain`, or on one of the simulator's
+    terrains: stairs, slopes, rough ground), plus a non-colliding ghost."""
     spec = robot.mj_spec(floor=add_terrain is None)
     if add_terrain is not None:
         add_terrain(spec)
+    scene = TerrainScene([terrain]) if terrain is not None else None
+    if scene is not None:
+        scene.add_to(spec)
     if ghost:
         copy = load_spec(robot.config)
         for geom in copy.geoms:
@@ -36,7 +43,11 @@ def scene_model(robot: Robot, ghost: bool, add_terrain: Callable[[mujoco.MjSpec]
         spec.attach(copy, prefix=GHOST_PREFIX, frame=spec.worldbody.add_frame())
     spec.visual.headlight.ambient = [0.45, 0.45, 0.45]
     spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
-    return robot.compile(spec)
+    model = robot.compile(spec)
+    if scene is not None:
+        scene.bind(model)
+        scene.apply(model, 0)
+    return model
 
 
 def render_video(
@@ -48,6 +59,7 @@ def render_video(
     size: tuple[int, int] = (480, 640),
     frame_dt: float = FRAME_DT,
     add_terrain: Callable[[mujoco.MjSpec], None] | None = None,
+    terrain: Terrain | None = None,
 ) -> Path:
     """Write `qpos` (T, nq) frames, `frame_dt` apart, as a video; the ghost shows `ghost_qpos`.
 
@@ -62,7 +74,7 @@ def render_video(
         raise ConfigError(f"fps must be in [1, 240], got {fps}")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    model = scene_model(robot, ghost=ghost_qpos is not None, add_terrain=add_terrain)
+    model = scene_model(robot, ghost=ghost_qpos is not None, add_terrain=add_terrain, terrain=terrain)
     data = mujoco.MjData(model)
     times = np.arange(0.0, (len(qpos) - 1) * frame_dt + 1e-9, 1.0 / fps)
     frames = np.minimum(np.rint(times / frame_dt).astype(int), len(qpos) - 1)

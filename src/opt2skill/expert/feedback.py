@@ -23,6 +23,7 @@ import numpy as np
 from opt2skill.data.record import FRAME_DT, Trajectory
 from opt2skill.errors import DataError
 from opt2skill.expert.lie import state_diff
+from opt2skill.expert.standing import StandingLQR, standing_gain, standing_segments
 from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
 from opt2skill.model.robot import Robot
 
@@ -30,7 +31,9 @@ from opt2skill.model.robot import Robot
 class FeedbackExpert:
     """Time-varying linear feedback around each reference, for many worlds at once."""
 
-    def __init__(self, robot: Robot, trajectories: Sequence[Trajectory]):
+    def __init__(self, robot: Robot, trajectories: Sequence[Trajectory], standing: StandingLQR | None = StandingLQR()):
+        """`standing`: give standing segments (and the time past the end) gains of their own
+        (`expert.standing`); None keeps DDP's gains everywhere."""
         if not trajectories:
             raise DataError("the expert needs at least one trajectory")
         self.nq, self.nu = robot.nq, robot.nu
@@ -48,9 +51,14 @@ class FeedbackExpert:
             knot_time = np.asarray(traj.knots["time"][:-1])[running]
             # The node covering frame f: the last running node starting at or before its time.
             covering = np.searchsorted(knot_time, traj.time + 1e-9, side="right") - 1
-            knot_of_frame.append(gain_offset + np.clip(covering, 0, len(knot_time) - 1))
+            frame_knot = gain_offset + np.clip(covering, 0, len(knot_time) - 1)
             gains.append(np.asarray(traj.knots["gains"])[running])
             gain_offset += len(knot_time)
+            for start, stop in standing_segments(traj, standing.min_duration) if standing else ():
+                gains.append(standing_gain(robot, traj, (start + stop) // 2, standing)[None])
+                frame_knot[start:stop] = gain_offset
+                gain_offset += 1
+            knot_of_frame.append(frame_knot)
             frames_x.append(np.concatenate([qpos_mj_to_pin(traj.qpos), qvel_mj_to_pin(traj.qpos, traj.qvel)], -1))
             frames_u.append(traj.joint_torque)
             self.frame_offset[i] = sum(len(x) for x in frames_x[:-1])
@@ -63,6 +71,12 @@ class FeedbackExpert:
     def torque(self, traj: np.ndarray, time: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         """Joint torques (N, nu) for worlds tracking trajectories `traj` (N,) at `time` (N,) seconds,
         measured states `qpos` (N, nq) and `qvel` (N, nv) in MuJoCo's layout."""
+        return self.torque_and_deviation(traj, time, qpos, qvel)[0]
+
+    def torque_and_deviation(self, traj: np.ndarray, time: np.ndarray, qpos: np.ndarray,
+                             qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The torques (N, nu) and the deviations x (-) x_ref(t) (N, 2 nv) they feed back on (tangent
+        space: base translation in the reference base frame, base rotation vector, joints, velocities)."""
         traj = np.asarray(traj, dtype=np.int64)
         position = np.asarray(time, dtype=float) / FRAME_DT
         last = self.num_frames[traj] - 1
@@ -72,7 +86,7 @@ class FeedbackExpert:
         row, row_next = self.frame_offset[traj] + frame, self.frame_offset[traj] + following
         x = np.concatenate([qpos_mj_to_pin(qpos), qvel_mj_to_pin(qpos, qvel)], -1)
         dx = (1 - alpha) * state_diff(self._x[row], x, self.nq) + alpha * state_diff(self._x[row_next], x, self.nq)
-        return self._u[row] - np.einsum("nij,nj->ni", self._gains[self._knot[row]], dx)
+        return self._u[row] - np.einsum("nij,nj->ni", self._gains[self._knot[row]], dx), dx
 
 
 def pd_targets(torque: np.ndarray, q: np.ndarray, qd: np.ndarray, kp: np.ndarray, kd: np.ndarray) -> np.ndarray:

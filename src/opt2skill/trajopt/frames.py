@@ -1,6 +1,8 @@
-"""200 Hz frames from a coarse solution: a feedback rollout of the same dynamics, or interpolation.
+"""200 Hz frames from a coarse solution: exact steps of the same dynamics under a policy, or interpolation.
 
-`rollout` (the default) integrates the problem's own contact dynamics at the frame period with the
+`complete` integrates the problem's own contact dynamics at the frame period under a torque policy
+per node; `trajopt.tracking.track` (the default completion) and `rollout` are its two policies.
+`rollout` integrates the problem's own contact dynamics at the frame period with the
 solver's feedback policy u = u_k - K_k (x_ref(t) (-) x), x_ref interpolated between the knots and u
 clipped to the torque limits, applying the same impulses at the same instants. Every frame is then
 an exact step of Crocoddyl's contact dynamics (semi-implicit Euler at 5 ms): frame k's state,
@@ -15,6 +17,7 @@ Both return world-axis wrenches on the robot at each contact point (the contact 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import crocoddyl
 import numpy as np
@@ -67,56 +70,83 @@ def _active(problem: Problem, node_contacts: tuple[str, ...]) -> list[bool]:
     return [name in node_contacts for name in problem.contact_names]
 
 
-def rollout(coarse: Problem, solution: Solution, cones: ContactCones | None = None) -> Frames:
-    """Feedback rollout at the frame period of the coarse problem's own dynamics around `solution`.
+# Per running node: (node index, the node's 5-ms model, its data) -> the node's torque policy,
+# (frame index within the node, state) -> torque (clipped to the limits by the caller).
+NodePolicy = Callable[[int, np.ndarray], np.ndarray]
+PolicyFactory = Callable[[int, object, object], NodePolicy]
 
-    Each coarse running node's differential model is integrated in 5-ms semi-implicit Euler steps;
-    impulse nodes are applied at their instants. A contact that touches down is held where the foot
-    actually is at that instant (its Baumgarte reference is moved there), so the contact never pulls
-    the foot towards a foothold it missed by a few millimetres. This changes the problem's contact
-    references: extract anything else from the problem first.
+
+def complete(coarse: Problem, cones: ContactCones | None, policy_for_node: PolicyFactory) -> Frames:
+    """Frames at the frame period on the coarse problem's own dynamics, torques from a policy.
+
+    Each running node's contact dynamics (its contacts and Baumgarte terms, without costs) is
+    integrated in 5-ms semi-implicit Euler steps under the node's policy, torques clipped to the
+    limits; impulse nodes are applied at their instants. Where the torque would push a contact
+    wrench out of its cone, the closest torque whose wrenches are inside is used (`ContactCones`).
+    A contact that touches down is held where the foot actually is at that instant (its Baumgarte
+    reference is moved there), so the contact never pulls the foot towards a foothold it missed by
+    a few millimetres: this changes the problem's contact references, so extract anything else from
+    the problem first. Every frame is then an exact step of the optimizer's dynamics.
     """
     shooting = coarse.shooting
     state = shooting.runningModels[0].state
     pm = state.pinocchio
     nq = pm.nq
-    xs, us, Ks = solution.xs, solution.us, solution.K
-    nodes = coarse.nodes
-    count = int(round(coarse.duration / FRAME_DT)) + 1
-    frames = _empty_frames(coarse, nq, pm.nv, count)
-    lb = -state.pinocchio.effortLimit[6:]
-    ub = state.pinocchio.effortLimit[6:]
+    frames = _empty_frames(coarse, nq, pm.nv, int(round(coarse.duration / FRAME_DT)) + 1)
+    limit = pm.effortLimit[6:]
+    no_costs = crocoddyl.CostModelSum(state, coarse.nu)
     x = shooting.x0.copy()
     frame, u = 0, None
-    for k, (node, model, data) in enumerate(zip(nodes[:-1], shooting.runningModels, shooting.runningDatas)):
+    for k, (node, model, data) in enumerate(zip(coarse.nodes[:-1], shooting.runningModels, shooting.runningDatas)):
         if node.kind == "impulse":
             model.calc(data, x)
             x = data.xnext.copy()
             _anchor_touchdowns(coarse, k, x)
             continue
-        fine = crocoddyl.IntegratedActionModelEuler(model.differential, FRAME_DT)
+        differential = model.differential  # the contacts are shared: anchoring applies here too
+        dynamics = crocoddyl.DifferentialActionModelContactFwdDynamics(
+            state, differential.actuation, differential.contacts, no_costs, 0.0, True
+        )
+        fine = crocoddyl.IntegratedActionModelEuler(dynamics, FRAME_DT)
         fine_data = fine.createData()
-        steps = int(round(node.dt / FRAME_DT))
-        for i in range(steps):
-            x_ref = _interpolate_state(pm, xs[k], xs[k + 1], i / steps)
-            u = np.clip(us[k] - Ks[k] @ state.diff(x_ref, x), lb, ub)
+        policy = policy_for_node(k, fine, fine_data)
+        for i in range(int(round(node.dt / FRAME_DT))):
+            u = np.clip(policy(i, x), -limit, limit)
             fine.calc(fine_data, x, u)
             if cones is not None and node.contacts and not cones.holds(fine_data, node.contacts):
-                u = np.clip(cones.project(fine, fine_data, x, u, node.contacts, ub), lb, ub)
+                u = np.clip(cones.project(fine, fine_data, x, u, node.contacts, limit), -limit, limit)
                 fine.calc(fine_data, x, u)
             frames.q[frame], frames.v[frame], frames.tau[frame] = x[:nq], x[nq:], u
             contact_wrenches(fine_data, coarse, node.contacts, frames.wrench[frame])
             frames.active[frame] = _active(coarse, node.contacts)
             x = fine_data.xnext.copy()
             if not np.all(np.isfinite(x)):
-                raise SolverError(f"the 200 Hz rollout diverged at t = {node.time:.3f} s")
+                raise SolverError(f"the 200 Hz frames diverged at t = {node.time:.3f} s")
             frame += 1
-    terminal, tdata = shooting.terminalModel, shooting.terminalData
-    terminal.calc(tdata, x, u)
+    terminal, terminal_data = shooting.terminalModel, shooting.terminalData
+    terminal.calc(terminal_data, x, u)
     frames.q[frame], frames.v[frame], frames.tau[frame] = x[:nq], x[nq:], u
-    contact_wrenches(tdata, coarse, nodes[-1].contacts, frames.wrench[frame])
-    frames.active[frame] = _active(coarse, nodes[-1].contacts)
+    contact_wrenches(terminal_data, coarse, coarse.nodes[-1].contacts, frames.wrench[frame])
+    frames.active[frame] = _active(coarse, coarse.nodes[-1].contacts)
     return frames
+
+
+def rollout(coarse: Problem, solution: Solution, cones: ContactCones | None = None) -> Frames:
+    """Frames under the solver's feedback policy u = u_k - K_k (x_ref(t) (-) x), x_ref interpolated
+    between the knots (`complete`)."""
+    state = coarse.shooting.runningModels[0].state
+    pm = state.pinocchio
+    xs, us, Ks = solution.xs, solution.us, solution.K
+
+    def policy_for_node(k: int, fine, fine_data) -> NodePolicy:
+        steps = int(round(coarse.nodes[k].dt / FRAME_DT))
+
+        def policy(i: int, x: np.ndarray) -> np.ndarray:
+            return us[k] - Ks[k] @ state.diff(_interpolate_state(pm, xs[k], xs[k + 1], i / steps), x)
+
+        return policy
+
+    return complete(coarse, cones, policy_for_node)
 
 
 class ContactCones:

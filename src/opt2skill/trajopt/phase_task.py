@@ -24,6 +24,7 @@ from opt2skill.trajopt.params import Param, ParamSpace
 from opt2skill.trajopt.phases import Phase, Problem, ProblemBuilder
 from opt2skill.trajopt.solver import Solution, solve
 from opt2skill.trajopt.task import Task
+from opt2skill.trajopt.tracking import track
 
 
 @dataclass
@@ -66,7 +67,9 @@ class PhaseTask(Task):
         problem = self.builder.build(plan.phases, plan.x0, settings.dt, integrator=settings.integrator)
         solution = self.optimize(problem, plan)
         solver_knots = knots(problem, solution, settings.keep_gains)  # before the rollout moves contacts
-        if settings.completion == "rollout":
+        if settings.completion == "track":
+            frames = track(problem, solution, self._cones(problem), settings.track_bandwidth)
+        elif settings.completion == "rollout":
             frames = frames_mod.rollout(problem, solution, self._cones(problem))
         else:
             frames = frames_mod.interpolate(problem, solution)

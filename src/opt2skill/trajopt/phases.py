@@ -27,6 +27,7 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.trajopt.costs import Terms
+from opt2skill.trajopt.integrator import MatchedEulerModel
 from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights
 
 
@@ -179,7 +180,10 @@ class ProblemBuilder:
                 f"not a positive multiple of the frame period {FRAME_DT:g} s"
             )
         frames = int(round(frames))
-        steps = min(max(1, int(round(phase.duration / dt))), frames)
+        # Integer arithmetic: the same phase length must always give the same nodes (a float tie
+        # such as 0.105 / 0.03 = 3.4999... or 3.5000... broke the stride periodicity of walks).
+        per_node = max(1, int(round(dt / FRAME_DT)))
+        steps = min(max(1, (2 * frames + per_node) // (2 * per_node)), frames)
         sizes = [frames // steps + (1 if i < frames % steps else 0) for i in range(steps)]
         return [size * FRAME_DT for size in sizes]
 
@@ -199,8 +203,11 @@ class ProblemBuilder:
         if with_costs:  # the optimizer keeps a torque margin for feedback; rollouts use the full range
             limit = self.robot.config.torque_limit * self.feasibility.torque_limit_scale
             dam.u_lb, dam.u_ub = -limit, limit
-        if integrator == "euler" or dt == 0.0:
+        substeps = int(round(dt / FRAME_DT))
+        if integrator == "euler" or dt == 0.0 or (integrator == "matched" and substeps == 1):
             return crocoddyl.IntegratedActionModelEuler(dam, dt)
+        if integrator == "matched":
+            return MatchedEulerModel(dam, dt, substeps, share_data=True)  # receding windows reuse its data
         rk = {"rk2": crocoddyl.RKType.two, "rk3": crocoddyl.RKType.three, "rk4": crocoddyl.RKType.four}[integrator]
         return crocoddyl.IntegratedActionModelRK(dam, rk, dt)
 

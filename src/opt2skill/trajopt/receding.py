@@ -5,8 +5,10 @@ seconds. Each window starts from the state the previous one committed, is warm-s
 previous window's solution where they overlap and from the task's `extend` guess beyond it, and
 is capped at `max_iter` iterations; its first `commit` seconds are kept. One global step length
 per FDDP iteration makes a full-horizon solve as slow as its hardest part; windows let each part
-take its own steps. The assembled trajectory is dynamically feasible (every window is rolled out
-from the committed state) and carries each node's feedback gains from the window that kept it.
+take its own steps. The assembled trajectory is dynamically feasible: every window starts from the
+committed state, and a window whose solve stopped (iteration cap) before a full step closed its
+gaps is replaced by the rollout of its own feedback law before it is committed. Each node carries
+the feedback gains of the window that kept it.
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from opt2skill.errors import SolverError
 from opt2skill.trajopt.phases import Problem
 from opt2skill.trajopt.settings import SolverSettings
 from opt2skill.trajopt.solver import Solution, solve_shooting
+
+CLOSE_GAPS_ABOVE = 1e-9  # a window whose largest gap exceeds this is made feasible by rollout before committing
 
 # (xs, us, Ks, j) -> guess of node j's next state, control and feedback gain from the nodes before it
 Extend = Callable[[list, list, list, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -47,6 +51,7 @@ def solve_receding(
     guess_u: list[np.ndarray] = []
     guess_K: list[np.ndarray] = []
     iterations, windows, costs, stops, per_window = 0, 0, [], [], []
+    closed, open_gap = 0, 0.0
     start_time = time.perf_counter()
     s = 0
     while s < n:
@@ -63,6 +68,10 @@ def solve_receding(
         init_x, init_u, feasible = feedback_rollout(sub, guess_x[s : e + 1], guess_u[s:e], guess_K[s:e])
         cap = first_max_iter if (s == 0 and first_max_iter) else max_iter
         sol = solve_shooting(sub, settings, init_x, init_u, cap, is_feasible=feasible)
+        if sol.gap > CLOSE_GAPS_ABOVE:  # stopped before a full step closed its gaps: commit a rollout
+            closed += 1
+            open_gap = max(open_gap, sol.gap)
+            sol.xs, sol.us = _close_gaps(sub, sol)
         iterations += sol.iterations
         windows += 1
         costs.append(sol.cost)
@@ -89,7 +98,8 @@ def solve_receding(
         cost=float(shooting_cost),
         iterations=iterations,
         converged=all(stop in ("converged", "stall") for stop in stops),
-        stop_reason=f"{windows} windows: " + ", ".join(sorted(set(stops))),
+        stop_reason=f"{windows} windows: " + ", ".join(sorted(set(stops)))
+        + (f"; {closed} closed by rollout (largest gap {open_gap:.2g})" if closed else ""),
         seconds=seconds,
         gap=gap,
         costs=costs,
@@ -125,6 +135,22 @@ def feedback_rollout(shooting, xs_ref: list, us_ref: list, Ks: list, tolerance: 
         xs.append(x)
         us.append(u)
     return xs, us, rolled
+
+
+def _close_gaps(shooting, sol: Solution) -> tuple[np.ndarray, list]:
+    """The window's solution made dynamically feasible: rolled out from its start under its own
+    feedback law u = u_k - K_k (x_k (-) x), torques clipped to the box."""
+    x = shooting.x0.copy()
+    xs, us = [x], []
+    for model, data, x_ref, u_ref, gain in zip(shooting.runningModels, shooting.runningDatas, sol.xs, sol.us, sol.K):
+        u = np.clip(u_ref - gain @ model.state.diff(x_ref, x), model.u_lb, model.u_ub) if model.nu else np.zeros(0)
+        model.calc(data, x, u)
+        x = data.xnext.copy()
+        if not np.all(np.isfinite(x)):
+            raise SolverError("receding-window solve: closing a window's gaps by rollout diverged")
+        xs.append(x)
+        us.append(u)
+    return np.array(xs), us
 
 
 def _first_node_at(nodes, t: float, lower: int) -> int:

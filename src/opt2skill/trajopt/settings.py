@@ -7,8 +7,8 @@ from dataclasses import dataclass
 from opt2skill.data.record import FRAME_DT
 from opt2skill.trajopt.config import require
 
-COMPLETIONS = ("rollout", "interpolate")
-INTEGRATORS = ("euler", "rk2", "rk3", "rk4")
+COMPLETIONS = ("track", "rollout", "interpolate")
+INTEGRATORS = ("euler", "matched", "rk2", "rk3", "rk4")
 
 
 @dataclass(frozen=True)
@@ -52,14 +52,16 @@ class SolverSettings:
     """Box-FDDP on a coarse grid, then 200 Hz frames (docs/trajopt.md)."""
 
     dt: float = 0.02  # s, the optimization grid; a multiple of the 200 Hz frame period
-    integrator: str = "euler"  # "euler" (semi-implicit) or Runge-Kutta "rk2", "rk3", "rk4"
+    integrator: str = "matched"  # semi-implicit Euler with the 200 Hz frames' position update (trajopt.integrator),
+    # "euler" (Crocoddyl's semi-implicit Euler) or Runge-Kutta "rk2", "rk3", "rk4"
     max_iter: int = 200
     stop: float = 1e-7  # Crocoddyl's stopping criterion
     stall_window: int = 3  # stop when the cost fell less than `stall_tol` (relative) over this many iterations
     stall_tol: float = 1e-3
     reg_init: float = 1e-9
     line_search_steps: int = 10  # step lengths tried: 1, 1/2, ..., 2^-(n-1)
-    completion: str = "rollout"  # 200 Hz frames: "rollout" (feedback rollout, exact) or "interpolate"
+    completion: str = "track"  # 200 Hz frames: "track" (acceleration tracking, exact), "rollout" (feedback law) or "interpolate"
+    track_bandwidth: float = 30.0  # rad/s, the PD of the "track" completion (Kp = bandwidth^2, Kd = 2 bandwidth)
     keep_gains: bool = False  # store the feedback gains K with the knots (traj.knots)
 
     def check(self) -> None:
@@ -73,4 +75,5 @@ class SolverSettings:
         require(self.stop > 0, "solver.stop must be > 0")
         require(self.stall_window >= 1 and self.stall_tol >= 0, "solver.stall_window >= 1 and stall_tol >= 0")
         require(self.integrator in INTEGRATORS, f"solver.integrator must be one of {INTEGRATORS}, got '{self.integrator}'")
+        require(self.track_bandwidth > 0, "solver.track_bandwidth must be > 0 rad/s")
         require(self.completion in COMPLETIONS, f"solver.completion must be one of {COMPLETIONS}, got '{self.completion}'")

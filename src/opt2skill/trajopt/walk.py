@@ -10,6 +10,7 @@ torques. The solve strategy is in `trajopt.walk_strategy`.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,6 +18,7 @@ import numpy as np
 import pinocchio as pin
 
 from opt2skill.data.record import Trajectory
+from opt2skill.errors import SolverError
 from opt2skill.trajopt.config import require
 from opt2skill.trajopt.gait import Foothold, GaitPlan, GaitSpec, plan_gait, swing_reference, yaw_matrix
 from opt2skill.trajopt.params import Param
@@ -97,6 +99,7 @@ class WalkTask(PhaseTask):
     name = "walk"
     config_class = WalkConfig
     params = PARAMS
+    _window: float | None = None  # the receding window of the solve under way, when it is the retry's
 
     def gait(self, params: dict[str, float]) -> tuple[GaitPlan, dict[str, Foothold]]:
         cfg = self.config
@@ -193,6 +196,32 @@ class WalkTask(PhaseTask):
         phases.append(Phase(gait.duration - gait.walk_end, final, landing(gait.steps[-1]), "stand"))
         return Plan(phases=phases, x0=x0, context=gait)
 
+    def solve(self, params: dict[str, float], seed: int) -> Trajectory:
+        """The walk; if its solve fails (`SolverError`), once more with `receding.retry_window`-long windows.
+
+        Fast walks (1.4 to 1.5 m/s) can drift, window after window, into states no 1.4-s window
+        recovers from; a longer look-ahead avoids it (docs/trajopt.md). The retry is recorded in
+        `traj.solver["retry"]` and its time counts in `total_time`.
+        """
+        start = time.perf_counter()
+        rc = self.config.receding
+        try:
+            return super().solve(params, seed)
+        except SolverError as exc:
+            if not (rc.enabled and rc.retry_window > rc.window):
+                raise
+            first_error = str(exc)
+        self._window = rc.retry_window
+        try:
+            traj = super().solve(params, seed)
+        except SolverError as exc:
+            raise SolverError(f"{exc} (also with {rc.retry_window:g}-s windows; first attempt: {first_error})") from None
+        finally:
+            self._window = None
+        traj.solver["retry"] = {"window": rc.retry_window, "first_error": first_error}
+        traj.solver["total_time"] = time.perf_counter() - start
+        return traj
+
     def optimize(self, problem: Problem, plan: Plan) -> Solution:
         rc = self.config.receding
         if not rc.enabled:
@@ -201,7 +230,7 @@ class WalkTask(PhaseTask):
         return solve_receding(
             problem,
             self.config.solver,
-            window=rc.window,
+            window=self._window or rc.window,
             commit=rc.commit,
             max_iter=rc.max_iter,
             first_max_iter=rc.first_max_iter,

@@ -26,10 +26,12 @@ class RecedingSettings:
     commit: float = 0.7  # s kept from each window
     max_iter: int = 20  # per window
     first_max_iter: int = 60  # the first window starts cold
+    retry_window: float = 2.0  # s: a walk whose solve fails is solved again with windows this long (0: no retry)
 
     def check(self) -> None:
         require(self.window > 0 and 0 < self.commit <= self.window, "receding: need 0 < commit <= window")
         require(self.max_iter >= 1 and self.first_max_iter >= 1, "receding: max_iter >= 1")
+        require(self.retry_window == 0 or self.retry_window >= self.commit, "receding: retry_window must be 0 or >= commit")
 
 
 class StrideGuess:

@@ -1,0 +1,129 @@
+"""The tracking environment and the PPO learner against the raw physics ceiling, in one run.
+
+Prints three figures on this machine:
+
+1. the raw ceiling (benchmarks/sim_ceiling.py): `mujoco.rollout` of 32 standing robots, 100 physics
+   steps per call, on all cores (the issue's "mj_step physics steps/s of the Digit model");
+2. the environment's policy steps/s for N = 16, 64 and 256 worlds with observations, rewards,
+   terminations, resets and Table II randomization (rough terrain for half the resets), the
+   robots tracking references (a dataset, or a squat recorded in the simulator) under PD targets
+   near the reference plus noise like an exploring policy's; its ratio to the ceiling counts 5
+   physics steps per policy step, and the share of the step spent inside `rollout` is given too
+   (a moving robot costs the physics more than the ceiling's standing one);
+3. the PPO learner's samples/s (rsl_rl update: 5 epochs of 4 mini-batches over 128 worlds x 48 steps,
+   actor and critic [512, 512, 256, 256]) with 1 and 2 torch threads.
+
+    .venv/bin/python benchmarks/env_throughput.py [--dataset DIR] [--seconds 6] [--worlds 16 64 256]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+import torch
+from sim_ceiling import RawRollout, interleaved, machine
+
+from opt2skill.data.reader import Dataset
+from opt2skill.envs import ReferenceBank, TrackingEnv, tracking_config
+from opt2skill.envs.recorded import record_reference, squat_targets
+from opt2skill.model import load_robot
+from opt2skill.rl.config import PPOConfig
+from opt2skill.rl.trainer import Trainer
+
+
+def references(robot, dataset: str | None):
+    if dataset:
+        ds = Dataset.open(dataset)
+        config = tracking_config(ds.identity.get("task", ""))
+        return config, ReferenceBank.from_dataset(robot, ds, config.observations.end_effectors)
+    config = tracking_config("recorded")
+    traj = record_reference(robot, squat_targets(robot, 400))
+    return config, ReferenceBank.from_trajectories(robot, [traj], config.observations.end_effectors)
+
+
+class EnvRun:
+    """The environment stepped in timed blocks by a reference-following noisy 'policy'."""
+
+    def __init__(self, robot, config, bank, nworld: int, noise: float = 0.1, seed: int = 0):
+        self.env = TrackingEnv(robot, bank, config, nworld, seed=seed)
+        self.env.set_progress(1.0)  # full observation noise and penalties
+        self.rng, self.noise = np.random.default_rng(seed), noise
+        self.joints = bank.kin_cols["joint_pos"]
+        self.physics = 0.0
+        rollout = self.env.sim._pool.rollout
+
+        def timed(*args, **kwargs):  # time spent in the physics itself
+            start = time.perf_counter()
+            out = rollout(*args, **kwargs)
+            self.physics += time.perf_counter() - start
+            return out
+
+        self.env.sim._pool.rollout = timed
+        self.noises = self.rng.normal(0.0, noise, (64, nworld, robot.nu))
+        self.steps, self.elapsed = 0, 0.0
+
+    def run(self, seconds: float) -> tuple[int, float]:
+        env, steps, start = self.env, 0, time.perf_counter()
+        while time.perf_counter() - start < seconds:
+            targets = env.bank.kin[env._row + 1][:, self.joints]
+            env.step(env.actions_for_targets(targets) + self.noises[self.steps % 64])
+            self.steps += 1
+            steps += env.num_envs
+        elapsed = time.perf_counter() - start
+        self.elapsed += elapsed
+        return steps, elapsed
+
+
+def learner_rate(robot, config, bank, threads: int, repeats: int = 3) -> float:
+    """Samples per second through PPO's update (epochs counted), on a real rollout of 128 worlds."""
+    torch.set_num_threads(threads)
+    ppo = PPOConfig()
+    with TrackingEnv(robot, bank, config, 128, seed=0) as env:
+        trainer = Trainer(env, ppo, None, seed=0)
+        trainer.warm_up_normalizers()
+        alg, venv = trainer.alg, trainer.venv
+        obs = venv.get_observations()
+        with torch.inference_mode():
+            for _ in range(trainer.steps_per_env):
+                obs, rewards, dones, extras = venv.step(alg.act(obs))
+                alg.process_env_step(obs, rewards, dones, extras)
+            alg.compute_returns(obs)
+        times = []
+        for _ in range(repeats):  # update() clears only the storage's counter: the data stays
+            start = time.perf_counter()
+            alg.update()
+            times.append(time.perf_counter() - start)
+        return trainer.batch * ppo.num_learning_epochs / min(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--dataset", help="reference dataset (default: a squat recorded in the simulator)")
+    parser.add_argument("--seconds", type=float, default=6.0, help="measuring time per figure (each side)")
+    parser.add_argument("--worlds", type=int, nargs="+", default=[16, 64, 256])
+    args = parser.parse_args()
+    print(machine())
+    robot = load_robot("digit")
+    config, bank = references(robot, args.dataset)
+    ceiling = RawRollout()
+    raw = interleaved({"ceiling": ceiling}, args.seconds)["ceiling"]
+    print(f"ceiling  rollout, 32 standing robots, all cores: {raw:8.0f} physics steps/s "
+          f"= {raw / 5:6.0f} policy steps/s at 5 physics steps each")
+    for nworld in args.worlds:
+        run = EnvRun(robot, config, bank, nworld)
+        rates = interleaved({"env": run, "ceiling": ceiling}, args.seconds)
+        rate, raw = rates["env"], rates["ceiling"]
+        physics = run.physics / run.elapsed
+        run.env.close()
+        print(f"env  N={nworld:4d} {rate:7.0f} policy steps/s = {5 * rate:6.0f} physics steps/s; ceiling {raw:6.0f}; "
+              f"{5 * rate / raw:6.1%} of the ceiling; {physics:5.1%} of the step inside rollout")
+    ceiling.close()
+    for threads in (1, 2):
+        print(f"learner  {threads} torch thread(s): {learner_rate(robot, config, bank, threads):8.0f} samples/s "
+              f"(5 epochs x 4 mini-batches of 1536, actor and critic [512, 512, 256, 256])")
+
+
+if __name__ == "__main__":
+    main()

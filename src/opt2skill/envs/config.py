@@ -1,0 +1,261 @@
+"""The tracking task's one config: every setting of Section III-B, Tables I and II, with defaults.
+
+Per-task differences (walking drops the base-position reward, Table I's note) and the ablations of
+Section IV-C (Pos, Pos+F, Pos+T, Pos+F+T) are values of this config, made by `tracking_config`;
+nothing else varies the environment. docs/envs.md explains each value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from opt2skill.errors import ConfigError
+
+ABLATIONS = {  # name -> (reference contact forces, reference joint torques): observation and reward
+    "pos": (False, False),
+    "pos_f": (True, False),
+    "pos_t": (False, True),
+    "pos_f_t": (True, True),
+}
+TASKS_WITHOUT_BASE_POSITION = ("walk",)  # Table I: "the Base Pos. reward is not included in walking"
+KERNELS = ("exp_sq", "exp_l1", "sq")
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise ConfigError(message)
+
+
+@dataclass(frozen=True)
+class Term:
+    """One reward term: `weight * kernel(error)`.
+
+    exp_sq: exp(-scale |e|_2^2); exp_l1: exp(-scale |e|_1); sq: |e|_2^2 (penalties, negative weight).
+    A weight of 0 switches the term off (not computed, logged as 0).
+    """
+
+    weight: float
+    scale: float = 0.0
+    kernel: str = "exp_sq"
+
+    def check(self, name: str) -> None:
+        _require(self.kernel in KERNELS, f"reward '{name}': kernel must be one of {KERNELS}, got '{self.kernel}'")
+        _require(self.scale >= 0, f"reward '{name}': scale must be >= 0, got {self.scale}")
+        if self.kernel == "sq":
+            _require(self.weight <= 0, f"penalty '{name}' must have a weight <= 0, got {self.weight}")
+        else:
+            _require(self.weight >= 0, f"reward '{name}' must have a weight >= 0, got {self.weight}")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Table I. Task terms compare the post-step state with the reference (docs/envs.md, alignment)."""
+
+    joint_pos: Term = Term(0.3, 5.0)
+    base_pos: Term = Term(0.3, 20.0)
+    base_ori: Term = Term(0.3, 50.0)  # rotation vector of q_ref^-1 q (geometry.quat_error)
+    base_lin_vel: Term = Term(0.3, 2.0)  # body frame
+    base_ang_vel: Term = Term(0.3, 0.5)  # body frame
+    ee_pos: Term = Term(0.3, 20.0)  # torso-relative, base frame, ObservationConfig.end_effectors
+    joint_torque: Term = Term(0.1, 0.01)
+    contact_force: Term = Term(0.1, 0.05, "exp_l1")  # foot forces, world axes
+    action_rate: Term = Term(-0.05, kernel="sq")  # second difference a_t - 2 a_{t-1} + a_{t-2}
+    torque: Term = Term(-0.03, kernel="sq")  # u / u_limit (the world's effective limit)
+    joint_acc: Term = Term(-1e-6, kernel="sq")  # rad/s^2, mean over the policy step
+
+    def terms(self) -> dict[str, Term]:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    def check(self) -> None:
+        for name, term in self.terms().items():
+            term.check(name)
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Table II observation noise: additive Gaussian standard deviations (actor only)."""
+
+    joint_pos: float = 0.0875  # rad
+    joint_vel: float = 0.075  # rad/s
+    base_lin_vel: float = 0.15  # m/s
+    base_ang_vel: float = 0.15  # rad/s
+    gravity: float = 0.075  # projected gravity (unit vector)
+
+    def check(self) -> None:
+        for f in dataclasses.fields(self):
+            _require(getattr(self, f.name) >= 0, f"noise '{f.name}' must be >= 0")
+
+
+@dataclass(frozen=True)
+class ObservationConfig:
+    """Section III-B observations. Layouts: `envs.observations.layout` and docs/envs.md."""
+
+    history: int = 10  # N samples of joint positions and actions (0, 5, 10, 15 in the paper's ablation)
+    stride: int = 4  # policy steps between history samples (50 Hz at 200 Hz)
+    reference_force: bool = True  # reference contact forces observed and rewarded (Pos+F)
+    reference_torque: bool = True  # reference joint torques observed and rewarded (Pos+T)
+    # Reference frame given with the observation at step t, relative to t, for kinematic quantities
+    # (positions, velocities, end effectors): 1 = the frame the step's result is scored against.
+    # Torques and contact forces are always those of frame t (applied over [t, t + dt)).
+    reference_offset: int = 1
+    end_effectors: tuple[str, ...] = ("left_hand", "right_hand", "left_foot", "right_foot")
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+
+    def check(self) -> None:
+        _require(0 <= self.history <= 50, f"history must be in [0, 50] samples, got {self.history}")
+        _require(1 <= self.stride <= 50, f"history stride must be in [1, 50] policy steps, got {self.stride}")
+        _require(self.reference_offset in (0, 1), f"reference_offset must be 0 or 1, got {self.reference_offset}")
+        _require(len(self.end_effectors) > 0, "at least one end effector must be tracked")
+        self.noise.check()
+
+
+@dataclass(frozen=True)
+class ActionConfig:
+    """PD targets = default pose + scale * action (docs/envs.md explains the scale)."""
+
+    scale: float = 0.5  # rad per action unit
+    clip: float = 10.0  # actions are clipped to [-clip, clip] before scaling (runaway samples)
+
+    def check(self) -> None:
+        _require(0 < self.scale <= 5, f"action scale must be in (0, 5] rad, got {self.scale}")
+        _require(self.clip > 0, f"action clip must be > 0, got {self.clip}")
+
+
+@dataclass(frozen=True)
+class TerminationConfig:
+    """An episode ends at the reference's last frame (a time-out, bootstrapped), or when one of these
+    thresholds is exceeded after a step (0 switches a threshold off), or when the world's physics
+    diverged (`sim` flags it unstable)."""
+
+    max_height_error: float = 0.25  # m, |base z - reference base z|
+    max_orientation_error: float = 0.8  # rad, geodesic angle between base and reference orientation
+    max_xy_error: float = 0.5  # m, horizontal base position error (a robot left behind by a walking reference)
+    min_height: float = 0.4  # m, base height above the world's start level: a fall
+
+    def check(self) -> None:
+        for f in dataclasses.fields(self):
+            _require(getattr(self, f.name) >= 0, f"termination '{f.name}' must be >= 0 (0: off)")
+
+
+@dataclass(frozen=True)
+class RandomizationConfig:
+    """Table II, re-sampled at every reset of a world. Ranges are (low, high) factors unless noted."""
+
+    enabled: bool = True
+    delay: tuple[float, float] = (0.0, 0.02)  # s, action delay
+    motor_strength: tuple[float, float] = (0.95, 1.05)  # per joint: Kp, Kd and the torque limit
+    kp_factor: tuple[float, float] = (0.9, 1.1)  # per joint
+    kd_factor: tuple[float, float] = (0.9, 1.1)  # per joint
+    mass_scale: tuple[float, float] = (0.9, 1.1)  # per link, mass and inertia
+    gravity_scale: tuple[float, float] = (0.9, 1.1)
+    friction_scale: tuple[float, float] = (0.3, 1.0)
+    rough_fraction: float = 0.5  # share of resets on rough terrain (Table II: flat, rough)
+    rough_amplitude: float = 0.02  # m, heights uniform in [-a, a]
+    rough_cell: float = 0.4  # m, lattice of random heights (interpolated on the 0.2 m grid)
+    rough_variants: int = 4  # distinct rough terrains (seeded)
+
+    RANGES = ("delay", "motor_strength", "kp_factor", "kd_factor", "mass_scale", "gravity_scale", "friction_scale")
+
+    def ranges(self) -> dict[str, tuple[float, float]]:
+        return {name: getattr(self, name) for name in self.RANGES}
+
+    def check(self) -> None:
+        for name, (lo, hi) in self.ranges().items():
+            _require(0 <= lo <= hi, f"randomization '{name}' must be a range 0 <= low <= high, got ({lo}, {hi})")
+        _require(self.delay[1] <= 0.02 + 1e-12, f"action delay must be at most 0.02 s (the sim's max_delay), got {self.delay[1]}")
+        _require(0 <= self.rough_fraction <= 1, f"rough_fraction must be in [0, 1], got {self.rough_fraction}")
+        _require(0 <= self.rough_amplitude <= 0.1, f"rough_amplitude must be in [0, 0.1] m, got {self.rough_amplitude}")
+        _require(0.2 <= self.rough_cell <= 5, f"rough_cell must be in [0.2, 5] m, got {self.rough_cell}")
+        _require(1 <= self.rough_variants <= 32, f"rough_variants must be in [1, 32], got {self.rough_variants}")
+
+
+@dataclass(frozen=True)
+class CurriculumConfig:
+    """Noise curriculum (Section III-B): observation noise and penalty weights are multiplied by a
+    factor rising linearly from `*_start` to 1 while training progress goes from `ramp[0]` to `ramp[1]`
+    (progress = env steps done / env steps planned, told by the runner)."""
+
+    noise_start: float = 0.0
+    penalty_start: float = 0.1
+    ramp: tuple[float, float] = (0.1, 0.6)
+
+    def check(self) -> None:
+        _require(0 <= self.noise_start <= 1 and 0 <= self.penalty_start <= 1, "curriculum start factors must be in [0, 1]")
+        _require(0 <= self.ramp[0] <= self.ramp[1] <= 1, f"curriculum ramp must satisfy 0 <= start <= end <= 1, got {self.ramp}")
+
+    def factors(self, progress: float) -> tuple[float, float]:
+        """(noise factor, penalty factor) at training progress in [0, 1]."""
+        lo, hi = self.ramp
+        x = 1.0 if hi <= lo else min(max((progress - lo) / (hi - lo), 0.0), 1.0)
+        return self.noise_start + (1 - self.noise_start) * x, self.penalty_start + (1 - self.penalty_start) * x
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    """How episodes start: a trajectory uniformly at random, a start frame uniformly in [0, T - 2]
+    (or 0 with probability `start_at_zero`)."""
+
+    start_at_zero: float = 0.0
+
+    def check(self) -> None:
+        _require(0 <= self.start_at_zero <= 1, f"start_at_zero must be a probability, got {self.start_at_zero}")
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    task: str = ""  # the dataset's task; decides per-task defaults (tracking_config)
+    ablation: str = "pos_f_t"
+    observations: ObservationConfig = field(default_factory=ObservationConfig)
+    actions: ActionConfig = field(default_factory=ActionConfig)
+    rewards: RewardConfig = field(default_factory=RewardConfig)
+    terminations: TerminationConfig = field(default_factory=TerminationConfig)
+    randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
+    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+    episodes: EpisodeConfig = field(default_factory=EpisodeConfig)
+
+    def check(self) -> None:
+        _require(self.ablation in ABLATIONS, f"ablation must be one of {', '.join(ABLATIONS)}, got '{self.ablation}'")
+        force, torque = ABLATIONS[self.ablation]
+        obs = self.observations
+        _require(
+            (obs.reference_force, obs.reference_torque) == (force, torque),
+            f"ablation '{self.ablation}' needs reference_force={force}, reference_torque={torque}",
+        )
+        _require(
+            (self.rewards.contact_force.weight > 0) <= force and (self.rewards.joint_torque.weight > 0) <= torque,
+            f"ablation '{self.ablation}' switches off the contact-force or torque reward",
+        )
+        for part in (obs, self.actions, self.rewards, self.terminations, self.randomization, self.curriculum, self.episodes):
+            part.check()
+
+
+def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10) -> TrackingConfig:
+    """The defaults for a dataset of `task`, with an ablation and a history length applied."""
+    if ablation not in ABLATIONS:
+        raise ConfigError(f"ablation must be one of {', '.join(ABLATIONS)}, got '{ablation}'")
+    force, torque = ABLATIONS[ablation]
+    rewards = RewardConfig()
+    if task in TASKS_WITHOUT_BASE_POSITION:
+        rewards = dataclasses.replace(rewards, base_pos=dataclasses.replace(rewards.base_pos, weight=0.0))
+    rewards = dataclasses.replace(
+        rewards,
+        contact_force=rewards.contact_force if force else dataclasses.replace(rewards.contact_force, weight=0.0),
+        joint_torque=rewards.joint_torque if torque else dataclasses.replace(rewards.joint_torque, weight=0.0),
+    )
+    observations = ObservationConfig(history=history, reference_force=force, reference_torque=torque)
+    config = TrackingConfig(task=task, ablation=ablation, observations=observations, rewards=rewards)
+    config.check()
+    return config
+
+
+def evaluation_config(config: TrackingConfig, randomize: bool = False, noise: bool = False) -> TrackingConfig:
+    """The same task for evaluation: randomization and observation noise off unless asked for,
+    every episode from frame 0, the curriculum at its end."""
+    return dataclasses.replace(
+        config,
+        randomization=dataclasses.replace(config.randomization, enabled=randomize),
+        observations=config.observations if noise else dataclasses.replace(
+            config.observations, noise=NoiseConfig(0.0, 0.0, 0.0, 0.0, 0.0)),
+        episodes=dataclasses.replace(config.episodes, start_at_zero=1.0),
+    )

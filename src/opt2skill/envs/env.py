@@ -1,0 +1,280 @@
+"""The tracking environment: N worlds imitating reference trajectories, batched in numpy.
+
+One `step(actions)` is one policy step (200 Hz) of every world: PD targets to the simulator,
+rewards (Table I) and terminations against the reference, resets of finished worlds (new
+reference, start frame and Table II parameters), observations (Section III-B). There is no loop
+over worlds on this path. The environment sees the physics only through `BatchedSim`.
+docs/envs.md is the contract: layouts, alignment, rewards, terminations, randomization, curriculum.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from opt2skill.data.record import FRAME_DT
+from opt2skill.envs import randomization
+from opt2skill.envs.config import TrackingConfig
+from opt2skill.envs.history import StridedHistory
+from opt2skill.envs.measure import Measurement, measure
+from opt2skill.envs.observations import ObservationLayout, fill, layout
+from opt2skill.envs.reference import ReferenceBank
+from opt2skill.envs.rewards import StepContext, penalty_values, reward_terms, task_errors
+from opt2skill.errors import ConfigError
+from opt2skill.model.robot import Robot
+from opt2skill.sim import BatchedSim, MujocoBatchedSim, SimConfig, SimStep
+
+CAUSES = ("time_out", "fall", "height_error", "orientation_error", "xy_error", "unstable")
+
+
+@dataclass
+class Episodes:
+    """Episodes that ended in one step (k of them)."""
+
+    length: np.ndarray  # (k,) policy steps
+    reward: np.ndarray  # (k,) sum of the step rewards (Table I, unscaled)
+    terms: dict[str, np.ndarray]  # term -> (k,) sum over the episode
+    cause: np.ndarray  # (k,) index into CAUSES
+    worlds: np.ndarray  # (k,) which worlds
+    final: SimStep  # their outputs after the step, before the reset replaced them (a copy)
+
+
+@dataclass
+class StepResult:
+    actor: np.ndarray  # (N, actor_dim) float32, observation after the step (and after any reset)
+    critic: np.ndarray  # (N, critic_dim) float32
+    reward: np.ndarray  # (N,) the step's reward, sum of `terms`
+    terminated: np.ndarray  # (N,) bool: fall, deviation or diverged physics
+    truncated: np.ndarray  # (N,) bool: the reference ended (a time-out: bootstrap the value)
+    terms: dict[str, np.ndarray]  # term -> (N,) weighted value of this step
+    episodes: Episodes | None  # the episodes that ended in this step
+    unstable: int = 0  # worlds whose physics diverged this step (reset, counted)
+    info: dict = field(default_factory=dict)
+
+
+class TrackingEnv:
+    """N worlds tracking references of `bank`. All randomness comes from `seed`."""
+
+    def __init__(self, robot: Robot, bank: ReferenceBank, config: TrackingConfig, num_envs: int, seed: int = 0,
+                 sim: BatchedSim | None = None, threads: int | None = None):
+        config.check()
+        if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
+            raise ConfigError(f"number of environments must be a positive integer, got {num_envs}")
+        self.robot, self.bank, self.config = robot, bank, config
+        self.num_envs, self.nu = int(num_envs), robot.nu
+        self.rng = np.random.default_rng(seed)
+        self.terrains = randomization.terrains(config.randomization, bank.xy_range, seed)
+        self.sim = sim or MujocoBatchedSim(robot, self.num_envs, SimConfig(nsubstep=5, nthread=threads),
+                                           terrains=self.terrains)
+        if abs(self.sim.policy_dt - FRAME_DT) > 1e-12:
+            raise ConfigError(f"the simulator's policy step is {self.sim.policy_dt} s; references are at {FRAME_DT} s")
+        self.terrains = list(self.sim.terrains)
+        obs = config.observations
+        self.layout: ObservationLayout = layout(obs, self.nu, len(robot.config.feet))
+        ee_names = list(robot.config.end_effectors)
+        self._ee_index = np.array([ee_names.index(e) for e in obs.end_effectors])
+        self.default_pose = robot.config.default_pose.astype(np.float64)
+        self.action_scale = config.actions.scale
+        self._kin_cols, self._dyn_cols = bank.kin_cols, bank.dyn_cols
+
+        n, nu = self.num_envs, self.nu
+        self.traj = np.zeros(n, dtype=np.int64)  # table trajectory of each world
+        self.frame = np.zeros(n, dtype=np.int64)  # current reference frame t
+        self.start_frame = np.zeros(n, dtype=np.int64)
+        self.steps = np.zeros(n, dtype=np.int64)  # policy steps in the episode
+        self._row = np.zeros(n, dtype=np.int64)
+        self._last_row = np.zeros(n, dtype=np.int64)
+        self._terms = tuple(config.rewards.terms())
+        self._ep_reward = np.zeros(n)
+        self._ep_terms = np.zeros((n, len(self._terms)))
+        self.action_1 = np.zeros((n, nu))  # a_{t-1}
+        self.action_2 = np.zeros((n, nu))  # a_{t-2}
+        self._act_hist = StridedHistory(n, nu, obs.history, obs.stride)
+        self._q_hist = StridedHistory(n, nu, obs.history, obs.stride)
+        self._q_hist_noisy = StridedHistory(n, nu, obs.history, obs.stride)
+        self.progress = 0.0
+        self.noise_factor, self.penalty_factor = config.curriculum.factors(0.0)
+        self.m: Measurement | None = None
+        self.state: SimStep | None = None  # the latest simulator outputs (privileged state, e.g. qpos, qvel)
+        self.reset()
+
+    # ------------------------------------------------------------------ public
+
+    @property
+    def actor_dim(self) -> int:
+        return self.layout.actor_dim
+
+    @property
+    def critic_dim(self) -> int:
+        return self.layout.critic_dim
+
+    def set_progress(self, progress: float) -> None:
+        """Training progress in [0, 1]: sets the curriculum's noise and penalty factors."""
+        self.progress = float(min(max(progress, 0.0), 1.0))
+        self.noise_factor, self.penalty_factor = self.config.curriculum.factors(self.progress)
+
+    def reference_index(self) -> tuple[np.ndarray, np.ndarray]:
+        """(dataset position of each world's trajectory, its current frame t)."""
+        return self.bank.positions[self.traj], self.frame.copy()
+
+    def actions_for_targets(self, targets: np.ndarray) -> np.ndarray:
+        """The actions whose PD targets are `targets` (N, nu): the inverse of the action map."""
+        return (np.asarray(targets) - self.default_pose) / self.action_scale
+
+    def reset(self) -> tuple[np.ndarray, np.ndarray]:
+        """Reset every world; (actor, critic) observations."""
+        self.reset_worlds(np.arange(self.num_envs))
+        return self.observations()
+
+    def reset_worlds(self, worlds: np.ndarray, trajectories: np.ndarray | None = None,
+                     frames: np.ndarray | None = None) -> None:
+        """Start new episodes in `worlds`: trajectories (table indices) and start frames given or
+        sampled, Table II parameters re-sampled, histories filled with the start state."""
+        worlds = np.asarray(worlds, dtype=np.int64)
+        k = len(worlds)
+        if k == 0:
+            return
+        bank = self.bank
+        traj = self.rng.integers(0, bank.num_trajectories, k) if trajectories is None else np.asarray(trajectories)
+        if frames is None:
+            frames = self.rng.integers(0, bank.length[traj] - 1)  # [0, T - 2]: at least one step to go
+            p0 = self.config.episodes.start_at_zero
+            if p0 > 0:
+                frames = np.where(self.rng.random(k) < p0, 0, frames)
+        frames = np.asarray(frames, dtype=np.int64)
+        if np.any(traj < 0) or np.any(traj >= bank.num_trajectories) or np.any(frames < 0) or np.any(
+                frames > bank.length[traj] - 2):
+            raise ConfigError("reset: trajectory or start frame out of range")
+        rows = bank.start[traj] + frames
+        qpos, qvel = bank.state(rows)
+        params = randomization.sample_params(self.rng, k, self.sim.nbody, self.nu, self.config.randomization,
+                                             self.terrains)
+        targets = qpos[:, 7:]
+        out = self.sim.reset(worlds, qpos, qvel, targets=targets, params=params)
+        m = measure(out, self.sim.z_offset[worlds], self._ee_index)
+        if self.m is None:  # first reset of every world
+            self.m, self.state = m, out
+        else:
+            self.m.assign(worlds, m)
+            self.state.assign(worlds, out)
+        self.traj[worlds], self.frame[worlds], self.start_frame[worlds] = traj, frames, frames
+        self._row[worlds] = rows
+        self._last_row[worlds] = bank.start[traj] + bank.length[traj] - 1
+        self.steps[worlds] = 0
+        self._ep_reward[worlds] = 0.0
+        self._ep_terms[worlds] = 0.0
+        held = self.actions_for_targets(targets)  # the action that held the start pose
+        self.action_1[worlds] = held
+        self.action_2[worlds] = held
+        self._act_hist.reset(worlds, held)
+        self._q_hist.reset(worlds, m.joint_pos)
+        sigma = self.noise_factor * self.config.observations.noise.joint_pos
+        depth = self._q_hist_noisy.depth
+        self._q_hist_noisy.reset(worlds, m.joint_pos[:, None, :] + sigma * self.rng.standard_normal((k, depth, self.nu)))
+        self._kp, self._kd, self._limit = self.sim.gains()
+
+    def step(self, actions: np.ndarray) -> StepResult:
+        cfg = self.config
+        a = np.clip(np.asarray(actions, dtype=np.float64), -cfg.actions.clip, cfg.actions.clip)
+        if a.shape != (self.num_envs, self.nu):
+            raise ConfigError(f"actions must have shape {(self.num_envs, self.nu)}, got {a.shape}")
+        out = self.sim.step(self.default_pose + self.action_scale * a)
+        m = measure(out, self.sim.z_offset, self._ee_index)
+        bank = self.bank
+        kin, dyn = bank.kin[self._row + 1], bank.dyn[self._row]  # frame t + 1 (state), frame t (held over the step)
+        ctx = StepContext(m, _columns(kin, self._kin_cols), _columns(dyn, self._dyn_cols), a, self.action_1,
+                          self.action_2, self._limit)
+        errors = task_errors(ctx)
+        terms = reward_terms(cfg.rewards, errors, penalty_values(ctx), self.penalty_factor)
+        unstable = out.unstable.copy()  # the resets below overwrite rows of `out`
+        if unstable.any():
+            for v in terms.values():
+                v[unstable] = 0.0
+        reward = sum(terms.values())
+
+        self.action_2, self.action_1 = self.action_1, a
+        self._act_hist.push(a)
+        self._q_hist.push(m.joint_pos)
+        sigma = self.noise_factor * cfg.observations.noise.joint_pos
+        self._q_hist_noisy.push(m.joint_pos + sigma * self.rng.standard_normal(m.joint_pos.shape) if sigma else m.joint_pos)
+        self.frame += 1
+        self._row += 1
+        self.steps += 1
+        self._ep_reward += reward
+        self._ep_terms += np.stack([terms[t] for t in self._terms], axis=1)
+
+        cause = self._causes(m, errors, ctx.kin, unstable)
+        done = cause >= 0
+        truncated = cause == 0
+        self.m, self.state = m, out
+        episodes = None
+        if done.any():
+            worlds = np.flatnonzero(done)
+            episodes = Episodes(self.steps[worlds].copy(), self._ep_reward[worlds].copy(),
+                                {t: self._ep_terms[worlds, i].copy() for i, t in enumerate(self._terms)},
+                                cause[worlds].copy(), worlds, out.rows(worlds))
+            self.reset_worlds(worlds)
+        actor, critic = self.observations()
+        return StepResult(actor, critic, reward, done & ~truncated, truncated, terms, episodes, int(unstable.sum()))
+
+    def observations(self) -> tuple[np.ndarray, np.ndarray]:
+        """(actor (N, actor_dim), critic (N, critic_dim)) float32 of the current state."""
+        m, bank, obs_cfg = self.m, self.bank, self.config.observations
+        kin = _columns(bank.kin[self._row + obs_cfg.reference_offset], self._kin_cols)
+        dyn = _columns(bank.dyn[self._row], self._dyn_cols)
+        values = {
+            "base_pos": m.base_pos, "base_quat": m.base_quat, "base_lin_vel": m.base_lin_vel,
+            "base_ang_vel": m.base_ang_vel, "projected_gravity": m.gravity, "joint_pos_history": self._q_hist.read(),
+            "joint_vel": m.joint_vel, "ee_pos": m.ee_pos, "action_history": self._act_hist.read(),
+            "contact_force": m.force_heading, "joint_torque": m.torque, "kp": self._kp, "kd": self._kd,
+            "ref_base_pos": kin["base_pos"], "ref_base_quat": kin["base_quat"], "ref_base_lin_vel": kin["base_lin_vel"],
+            "ref_base_ang_vel": kin["base_ang_vel"], "ref_joint_pos": kin["joint_pos"], "ref_joint_vel": kin["joint_vel"],
+            "ref_ee_pos": kin["ee_pos"], "ref_contact_force": dyn["force_heading"], "ref_joint_torque": dyn["joint_torque"],
+        }
+        critic = fill(np.empty((self.num_envs, self.critic_dim), np.float32), self.layout.critic, values)
+        noise, f = obs_cfg.noise, self.noise_factor
+        if f > 0:
+            z = self.rng.standard_normal((self.num_envs, 9 + self.nu))
+            values["base_lin_vel"] = m.base_lin_vel + f * noise.base_lin_vel * z[:, 0:3]
+            values["base_ang_vel"] = m.base_ang_vel + f * noise.base_ang_vel * z[:, 3:6]
+            values["projected_gravity"] = m.gravity + f * noise.gravity * z[:, 6:9]
+            values["joint_vel"] = m.joint_vel + f * noise.joint_vel * z[:, 9:]
+        values["joint_pos_history"] = self._q_hist_noisy.read()
+        actor = fill(np.empty((self.num_envs, self.actor_dim), np.float32), self.layout.actor, values)
+        return actor, critic
+
+    def close(self) -> None:
+        self.sim.close()
+
+    def __enter__(self) -> TrackingEnv:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ internals
+
+    def _causes(self, m: Measurement, errors: dict[str, np.ndarray], kin: dict[str, np.ndarray],
+                unstable: np.ndarray) -> np.ndarray:
+        """Index into CAUSES of why each world's episode ends after this step, -1 if it goes on.
+        A world that ends for several reasons gets the last one listed (divergence wins)."""
+        t = self.config.terminations
+        cause = np.full(self.num_envs, -1)
+        cause[self._row >= self._last_row] = 0
+        if t.min_height:
+            cause[m.base_pos[:, 2] < t.min_height] = 1
+        if t.max_height_error:
+            cause[np.abs(errors["base_pos"][:, 2]) > t.max_height_error] = 2
+        if t.max_orientation_error:
+            ori = errors["base_ori"]
+            cause[np.einsum("ij,ij->i", ori, ori) > t.max_orientation_error ** 2] = 3
+        if t.max_xy_error:
+            xy = errors["base_pos"][:, :2]
+            cause[np.einsum("ij,ij->i", xy, xy) > t.max_xy_error ** 2] = 4
+        cause[unstable] = 5
+        return cause
+
+
+def _columns(block: np.ndarray, cols: dict[str, slice]) -> dict[str, np.ndarray]:
+    return {name: block[:, s] for name, s in cols.items()}

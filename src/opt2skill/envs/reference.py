@@ -1,0 +1,139 @@
+"""Reference frames the tracking task reads: every trajectory of a dataset in two float32 matrices.
+
+`kin` holds what a frame's state is (base pose and velocities, joints, end effectors), `dyn` what
+acts over the frame's step (joint torques, foot contact forces). One row per frame, trajectories
+stacked: reading the frames of all worlds is one gather per matrix. docs/envs.md has the columns.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from opt2skill.data.reader import Dataset
+from opt2skill.data.record import Trajectory
+from opt2skill.errors import DataError
+from opt2skill.geometry import quat_to_mat, yaw_of
+from opt2skill.model.robot import Robot
+
+FIELDS = ("qpos", "qvel", "base_lin_vel", "base_ang_vel", "joint_torque", "contact_wrench", "ee_pos_base")
+
+
+def _slices(sizes: dict[str, int]) -> dict[str, slice]:
+    out, start = {}, 0
+    for name, size in sizes.items():
+        out[name] = slice(start, start + size)
+        start += size
+    return out
+
+
+@dataclass
+class ReferenceBank:
+    kin: np.ndarray  # (rows, dk) float32, columns `kin_cols`
+    dyn: np.ndarray  # (rows, dd) float32, columns `dyn_cols`
+    kin_cols: dict[str, slice]
+    dyn_cols: dict[str, slice]
+    start: np.ndarray  # (n,) first row of each trajectory
+    length: np.ndarray  # (n,) frames of each
+    positions: np.ndarray  # (n,) dataset positions (or list positions) of the trajectories
+    task: str
+    xy_range: tuple[tuple[float, float], tuple[float, float]]  # extent of the base paths, for terrain
+
+    @property
+    def num_trajectories(self) -> int:
+        return len(self.start)
+
+    @property
+    def num_rows(self) -> int:
+        return len(self.kin)
+
+    @classmethod
+    def from_dataset(cls, robot: Robot, dataset: Dataset, end_effectors: Sequence[str],
+                     subset: Sequence[int] | None = None, use_cache: bool = True) -> ReferenceBank:
+        if len(dataset) == 0:
+            raise DataError(f"dataset {dataset.root} has no accepted trajectories to track")
+        identity = dataset.identity
+        if identity.get("robot_hash") not in (None, robot.hash):
+            raise DataError(
+                f"dataset {dataset.root} was made for robot '{identity.get('robot')}' with a different robot "
+                f"file (hash {str(identity.get('robot_hash'))[:12]}); this run uses '{robot.name}' ({robot.hash[:12]})"
+            )
+        first = dataset.meta(0 if subset is None else int(subset[0]))
+        table = dataset.frame_table(FIELDS, dtype=np.float32, subset=subset, use_cache=use_cache)
+        return cls._build(robot, dict(table.fields), table.start, table.length, table.trajectories,
+                          identity.get("task", first.task), first.contact_names, first.ee_names, end_effectors)
+
+    @classmethod
+    def from_trajectories(cls, robot: Robot, trajectories: Sequence[Trajectory], end_effectors: Sequence[str],
+                          dtype=np.float32) -> ReferenceBank:
+        if not trajectories:
+            raise DataError("no trajectories to track")
+        first = trajectories[0]
+        for t in trajectories:
+            if t.contact_names != first.contact_names or t.ee_names != first.ee_names:
+                raise DataError("reference trajectories must share their contact and end-effector names")
+        length = np.array([t.num_frames for t in trajectories], dtype=np.int64)
+        fields = {name: np.concatenate([getattr(t, name) for t in trajectories]).astype(dtype) for name in FIELDS}
+        start = np.concatenate([[0], np.cumsum(length)[:-1]])
+        return cls._build(robot, fields, start, length, np.arange(len(trajectories)), first.task,
+                          first.contact_names, first.ee_names, end_effectors, dtype)
+
+    @classmethod
+    def _build(cls, robot: Robot, f: dict[str, np.ndarray], start, length, positions, task: str,
+               contact_names: Sequence[str], ee_names: Sequence[str], end_effectors: Sequence[str],
+               dtype=np.float32) -> ReferenceBank:
+        nu, nq = robot.nu, robot.nq
+        if f["qpos"].shape[1] != nq or f["joint_torque"].shape[1] != nu:
+            raise DataError(f"reference trajectories have {f['qpos'].shape[1]} positions and {f['joint_torque'].shape[1]} "
+                            f"torques; robot '{robot.name}' has {nq} and {nu}")
+        if np.any(length < 2):
+            raise DataError("every reference trajectory needs at least 2 frames")
+        feet = [foot.name for foot in robot.config.feet]
+        if tuple(contact_names) != tuple(feet):
+            raise DataError(f"the tracking task compares the feet's contact forces {feet}; "
+                            f"the references have contacts {list(contact_names)}")
+        missing = [e for e in end_effectors if e not in ee_names]
+        if missing:
+            raise DataError(f"end effectors {missing} are not in the references (they have {list(ee_names)})")
+        ee = [list(ee_names).index(e) for e in end_effectors]
+        qpos = f["qpos"]
+        quat = qpos[:, 3:7] / np.linalg.norm(qpos[:, 3:7], axis=1, keepdims=True)
+        force = f["contact_wrench"][:, :, :3]  # (rows, nfeet, 3) on the robot, world axes
+        yaw = yaw_of(quat)
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        heading = np.stack([c * force[..., 0] + s * force[..., 1], -s * force[..., 0] + c * force[..., 1],
+                            force[..., 2]], axis=-1)  # R_z(yaw)^T F
+        rows = len(qpos)
+        kin_parts = {
+            "base_pos": qpos[:, :3], "base_quat": quat, "base_lin_vel": f["base_lin_vel"],
+            "base_ang_vel": f["base_ang_vel"], "joint_pos": qpos[:, 7:], "joint_vel": f["qvel"][:, 6:],
+            "ee_pos": f["ee_pos_base"][:, ee].reshape(rows, -1),
+        }
+        dyn_parts = {
+            "joint_torque": f["joint_torque"], "force_world": force.reshape(rows, -1),
+            "force_heading": heading.reshape(rows, -1),
+        }
+        kin_cols = _slices({k: v.shape[1] for k, v in kin_parts.items()})
+        dyn_cols = _slices({k: v.shape[1] for k, v in dyn_parts.items()})
+        kin = np.concatenate(list(kin_parts.values()), axis=1).astype(dtype)
+        dyn = np.concatenate(list(dyn_parts.values()), axis=1).astype(dtype)
+        if not (np.all(np.isfinite(kin)) and np.all(np.isfinite(dyn))):
+            raise DataError("reference trajectories contain non-finite values")
+        xy = qpos[:, :2]
+        xy_range = ((float(xy[:, 0].min()), float(xy[:, 0].max())), (float(xy[:, 1].min()), float(xy[:, 1].max())))
+        return cls(kin, dyn, kin_cols, dyn_cols, np.asarray(start, dtype=np.int64), np.asarray(length, dtype=np.int64),
+                   np.asarray(positions), str(task), xy_range)
+
+    def state(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """MuJoCo qpos (k, nq) and qvel (k, nv), float64, of reference rows (base linear velocity to
+        the world frame, quaternion normalized)."""
+        k = self.kin[rows].astype(np.float64)
+        c = self.kin_cols
+        quat = k[:, c["base_quat"]]
+        quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+        lin_world = np.einsum("kij,kj->ki", quat_to_mat(quat), k[:, c["base_lin_vel"]])
+        qpos = np.concatenate([k[:, c["base_pos"]], quat, k[:, c["joint_pos"]]], axis=1)
+        qvel = np.concatenate([lin_world, k[:, c["base_ang_vel"]], k[:, c["joint_vel"]]], axis=1)
+        return qpos, qvel

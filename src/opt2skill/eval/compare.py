@@ -1,0 +1,105 @@
+"""`opt2skill compare`: several runs on the same references, side by side (Table III style), with a
+two-sided Wilcoxon signed-rank test of each run against the first, metric by metric (as the paper
+compares datasets). The references are held out from every run unless asked otherwise."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from opt2skill.data.atomic import atomic_path, write_json
+from opt2skill.data.reader import Dataset
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.eval.evaluate import EvalRequest, evaluate, load_run_policy, training_fingerprints
+from opt2skill.eval.references import ReferenceSet, check_metric_fields, select_references
+from opt2skill.eval.report import PAPER_ROWS, TABLE_III, TABLE_IV, EvalReport, header, label, mean_se
+from opt2skill.eval.stats import paired_wilcoxon
+
+
+@dataclass
+class Comparison:
+    references: ReferenceSet
+    reports: list[EvalReport]
+    p_values: dict[str, dict[str, float]]  # "B vs A" -> metric -> p
+
+    def names(self) -> list[str]:
+        return [r.title() for r in self.reports]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"format": "opt2skill-compare", "format_version": 1, "references": self.references.to_dict(),
+                "runs": [r.to_dict() for r in self.reports], "wilcoxon_p": self.p_values,
+                "test": "two-sided Wilcoxon signed-rank, paired by reference, each run against the first"}
+
+    def rows(self) -> list[list[str]]:
+        rows = []
+        for r in self.reports:
+            s = r.summary()
+            rows.append([r.title(), *(mean_se(s[m]) for m in (*TABLE_III, *TABLE_IV)), f"{r.success_rate:.0%}"])
+        rows += [[name, *(mean_se(v.get(m)) for m in (*TABLE_III, *TABLE_IV)), "-"] for name, v in PAPER_ROWS.items()]
+        return rows
+
+    def p_rows(self) -> list[list[str]]:
+        return [[pair, *(_p(p[m]) for m in (*TABLE_III, *TABLE_IV)), ""] for pair, p in self.p_values.items()]
+
+    def markdown(self) -> str:
+        head = ["run", *(header(m) for m in (*TABLE_III, *TABLE_IV)), "success"]
+        lines = ["# Comparison (mean ± SE over the same references)", "", f"- references: {self.references.note}", ""]
+        lines += ["| " + " | ".join(head) + " |", "|" + "|".join(" --- " for _ in head) + "|"]
+        lines += ["| " + " | ".join(r) + " |" for r in self.rows()]
+        lines += ["", "Wilcoxon signed-rank p-values (two-sided, paired by reference; '-' where undefined):", ""]
+        p_head = ["pair", *(label(m) for m in (*TABLE_III, *TABLE_IV)), ""]
+        lines += ["| " + " | ".join(p_head) + " |", "|" + "|".join(" --- " for _ in p_head) + "|"]
+        lines += ["| " + " | ".join(r) + " |" for r in self.p_rows()]
+        lines += ["", "The paper's row is a reference line (Agility's simulator), not a result of this code."]
+        return "\n".join(lines) + "\n"
+
+    def write(self, out: Path) -> tuple[Path, Path]:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / "compare.json", self.to_dict())
+        with atomic_path(out / "compare.md") as tmp:
+            tmp.write_text(self.markdown())
+        return out / "compare.json", out / "compare.md"
+
+
+def compare(runs: list[Path], dataset: Path | None = None, n: int = 20, split: str = "held-out",
+            indices: tuple[int, ...] = (), randomize: bool = False, noise: bool = False, seed: int = 0,
+            threads: int | None = None, progress: bool = True) -> Comparison:
+    """Evaluate every run on one set of references (reusing each run's cached report when its
+    checkpoint, references and options are unchanged) and test each against the first."""
+    if len(runs) < 2:
+        raise ConfigError("compare needs at least two runs")
+    loaded = [load_run_policy(r) for r in runs]
+    tasks = {p.spec.tracking.task for p in loaded}
+    if len(tasks) > 1:
+        raise DataError(f"the runs were trained on different tasks ({', '.join(sorted(tasks))}); compare runs of one task")
+    ds = Dataset.open(dataset or loaded[0].spec.dataset)
+    check_metric_fields(ds, tasks.pop())
+    trained = [training_fingerprints(p.spec) for p in loaded]
+    union = None if any(t is None for t in trained) else set().union(*trained)
+    refs = select_references(ds, union, n, split, list(indices), what="one of the runs")
+    names = [p.info["name"] for p in loaded]
+    for policy in loaded:
+        if names.count(policy.info["name"]) > 1:  # two runs of the same name: tell them apart
+            policy.info["name"] = f"{policy.info['run']} (iteration {policy.info['iteration']})"
+    reports = []
+    for run, policy in zip(runs, loaded):
+        request = EvalRequest(run=run, dataset=Path(ds.root), n=len(refs.indices), indices=refs.indices,
+                              randomize=randomize, noise=noise, seed=seed, threads=threads)
+        cache = request.default_out(policy.spec) / "eval.json"
+        report, rollouts = evaluate(request, progress=progress, reuse=cache, run=policy)
+        if rollouts is not None:
+            report.write(cache.parent)
+        reports.append(report)
+    first = reports[0]
+    p_values = {f"{r.title()} vs {first.title()}": paired_wilcoxon([x.errors for x in r.results],
+                                                                 [x.errors for x in first.results])
+                for r in reports[1:]}
+    refs = dataclasses.replace(refs, split="held-out from every run" if split == "held-out" and not indices else refs.split)
+    return Comparison(refs, reports, p_values)
+
+
+def _p(p: float) -> str:
+    return "-" if p != p else (f"{p:.2g}" if p >= 1e-3 else "<0.001")

@@ -1,0 +1,101 @@
+"""The feedback expert acting in a tracking environment: actions for every world from the privileged state.
+
+At policy step t a world tracks its reference at frame t's instant. The expert reads the world's
+simulated state (not the actor's noisy observations), evaluates the feedback law of its reference
+(`FeedbackExpert`) and returns the action whose PD targets make the world's servos produce that torque
+at this state (with the world's own, randomized gains): `pd_targets`, then the environment's action
+map. Everything is batched over the worlds; there is no loop over worlds.
+
+The law is local: far from its reference it is not a controller any more. `ExpertConfig` says how far
+a state may be from the reference for the expert's action to count as a label, and how the torque
+becomes a held PD target (docs/distill.md has the measured figures behind the defaults).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from opt2skill.data.record import FRAME_DT, Trajectory
+from opt2skill.envs import TrackingEnv
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.expert.feedback import FeedbackExpert, pd_targets
+from opt2skill.expert.standing import StandingLQR
+
+
+@dataclass(frozen=True)
+class ExpertConfig:
+    """How the law becomes PD targets, and how far from its reference it is trusted (0: no limit).
+
+    `standing_gains`: standing segments get stabilizing gains of their own (`expert.standing`).
+    `lead`: the targets are computed at the joint positions predicted `lead` policy steps ahead
+    (q + lead h qd): the servo holds a target for the whole step while the joints move, and the
+    torque it applies drifts by kp qd over the step. `joint_losses`: the motors also supply the
+    simulated joints' damping and friction loss, which the optimizer's rigid-body model leaves out.
+    docs/distill.md has the measurements behind the defaults.
+    """
+
+    lead: float = 0.75  # policy steps
+    joint_losses: bool = True
+    standing_gains: bool = True  # LQR gains of their own in standing segments (expert.standing)
+    friction_smoothing: float = 0.05  # rad/s, friction loss as f tanh(qd / smoothing)
+    max_base_position: float = 0.15  # m, base translation error
+    max_base_rotation: float = 0.3  # rad, base rotation error
+    max_joint: float = 0.5  # rad, largest joint-position error
+
+    def check(self) -> None:
+        if not 0 <= self.lead <= 5:
+            raise ConfigError(f"expert lead must be in [0, 5] policy steps, got {self.lead}")
+        if self.friction_smoothing <= 0:
+            raise ConfigError(f"expert friction_smoothing must be > 0 rad/s, got {self.friction_smoothing}")
+        for name in ("max_base_position", "max_base_rotation", "max_joint"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"expert limit '{name}' must be >= 0 (0: no limit), got {getattr(self, name)}")
+
+    def valid(self, deviation: np.ndarray, nu: int) -> np.ndarray:
+        """(N,) bool: deviations (N, 2 nv) (tangent space, `FeedbackExpert.torque_and_deviation`) inside the limits."""
+        ok = np.ones(len(deviation), dtype=bool)
+        for limit, block in ((self.max_base_position, deviation[:, 0:3]), (self.max_base_rotation, deviation[:, 3:6])):
+            if limit:
+                ok &= np.einsum("ij,ij->i", block, block) <= limit * limit
+        if self.max_joint:
+            ok &= np.abs(deviation[:, 6:6 + nu]).max(axis=1) <= self.max_joint
+        return ok
+
+
+class EnvExpert:
+    """The feedback law of each world's reference, as actions of `env`."""
+
+    def __init__(self, env: TrackingEnv, trajectories: list[Trajectory], config: ExpertConfig | None = None):
+        """`trajectories`: the records of the env's reference bank, in the bank's order (with gains)."""
+        if len(trajectories) != env.bank.num_trajectories:
+            raise DataError(f"the expert needs the {env.bank.num_trajectories} trajectories of the environment's "
+                            f"references in order, got {len(trajectories)}")
+        lengths = np.array([t.num_frames for t in trajectories])
+        if np.any(lengths != env.bank.length):
+            raise DataError("the expert's trajectories are not the environment's references (frame counts differ)")
+        self.env = env
+        self.config = config or ExpertConfig()
+        self.config.check()
+        self.expert = FeedbackExpert(env.robot, trajectories, StandingLQR() if self.config.standing_gains else None)
+        model = env.robot.mj_model
+        self._damping, self._friction = model.dof_damping[6:].copy(), model.dof_frictionloss[6:].copy()
+
+    def act(self) -> tuple[np.ndarray, np.ndarray]:
+        """(actions (N, nu), valid (N,) bool) for the current state of every world."""
+        env = self.env
+        state = env.state
+        qpos = state.qpos.copy()
+        qpos[:, 2] -= env.sim.z_offset  # references stand on z = 0; the world stands on its terrain
+        torque, deviation = self.expert.torque_and_deviation(env.traj, env.frame * FRAME_DT, qpos, state.qvel)
+        cfg, qd = self.config, state.joint_vel
+        if cfg.joint_losses:
+            torque = torque + self._damping * qd + self._friction * np.tanh(qd / cfg.friction_smoothing)
+        kp, kd, _ = env.sim.gains()
+        targets = pd_targets(torque, state.joint_pos + cfg.lead * env.sim.policy_dt * qd, qd, kp, kd)
+        return env.actions_for_targets(targets), cfg.valid(deviation, env.nu)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """As a policy for `envs.evaluation.track` (the observation is ignored: the expert reads the state)."""
+        return self.act()[0]

@@ -1,0 +1,83 @@
+"""Stabilizing feedback gains for the standing segments of a reference, from an infinite-horizon LQR.
+
+DDP's gains come from a finite horizon: near its end they follow the terminal cost, not the
+dynamics, and held past the end they let the robot fall (measured: 2 of 3 walks fell within 3 s of
+standing on the last node's gain, none with the gain here; docs/expert.md). A standing segment (all
+feet in contact for at least `min_duration`) gets a gain of its own instead: the discrete-time LQR of
+the optimizer's contact dynamics (Crocoddyl's `DifferentialActionModelContactFwdDynamics`, the feet
+as 6D contacts held where they stand, semi-implicit Euler at the 5-ms frame step) linearized at the
+segment's middle frame, `scipy.linalg.solve_discrete_are` for the Riccati equation. The gain acts
+on the same tangent-space deviation as DDP's (u = u_ref - K (x (-) x_ref)).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import crocoddyl
+import numpy as np
+import pinocchio as pin
+from scipy.linalg import solve_discrete_are
+
+from opt2skill.data.record import FRAME_DT, Trajectory
+from opt2skill.errors import DataError
+from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
+from opt2skill.model.robot import Robot
+
+
+@dataclass(frozen=True)
+class StandingLQR:
+    """Weights of the standing LQR (per unit time; state costs on the tangent-space deviation)."""
+
+    min_duration: float = 0.4  # s of all feet in contact that make a standing segment
+    base_pose: float = 1e3  # base translation and rotation
+    joint_position: float = 1e2
+    base_velocity: float = 10.0
+    joint_velocity: float = 1.0
+    torque: float = 1.0  # on (u / torque limit)^2
+    baumgarte: tuple[float, float] = (100.0, 20.0)  # contact stabilization, as the optimizer's
+
+
+def standing_segments(traj: Trajectory, min_duration: float) -> list[tuple[int, int]]:
+    """Frame ranges [start, stop) where every contact of the record is active for >= min_duration."""
+    if traj.contact_active.shape[1] == 0:
+        return []
+    on = np.r_[0, traj.contact_active.all(axis=1).astype(np.int8), 0]
+    edges = np.diff(on)
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    shortest = int(round(min_duration / FRAME_DT))
+    return [(int(a), int(b)) for a, b in zip(starts, stops) if b - a >= shortest]
+
+
+def standing_gain(robot: Robot, traj: Trajectory, frame: int, weights: StandingLQR) -> np.ndarray:
+    """The LQR gain (nu, 2 nv) at one frame of a standing segment (float32, like the stored gains)."""
+    feet = {foot.name: foot for foot in robot.config.feet}
+    unknown = [name for name in traj.contact_names if name not in feet]
+    if unknown:
+        raise DataError(f"standing gains need flat foot contacts; the record also has {unknown}")
+    pm = robot.pin_model
+    q = qpos_mj_to_pin(traj.qpos[frame])
+    x = np.concatenate([q, qvel_mj_to_pin(traj.qpos[frame], traj.qvel[frame])])
+    state = crocoddyl.StateMultibody(pm)
+    actuation = crocoddyl.ActuationModelFloatingBase(state)
+    data = pm.createData()
+    pin.framesForwardKinematics(pm, data, q)
+    contacts = crocoddyl.ContactModelMultiple(state, actuation.nu)
+    for name in traj.contact_names:
+        fid = robot.pin_frame_id(feet[name].sole_site)
+        contacts.addContact(name, crocoddyl.ContactModel6D(state, fid, data.oMf[fid], pin.LOCAL, actuation.nu,
+                                                           np.array(weights.baumgarte)))
+    dynamics = crocoddyl.DifferentialActionModelContactFwdDynamics(
+        state, actuation, contacts, crocoddyl.CostModelSum(state, actuation.nu))
+    step = crocoddyl.IntegratedActionModelEuler(dynamics, FRAME_DT)
+    step_data = step.createData()
+    u = traj.joint_torque[frame]
+    step.calc(step_data, x, u)
+    step.calcDiff(step_data, x, u)
+    A, B = np.array(step_data.Fx), np.array(step_data.Fu)
+    nu = robot.nu
+    Q = FRAME_DT * np.diag(np.r_[np.full(6, weights.base_pose), np.full(nu, weights.joint_position),
+                                 np.full(6, weights.base_velocity), np.full(nu, weights.joint_velocity)])
+    R = FRAME_DT * weights.torque * np.diag(1.0 / robot.config.torque_limit ** 2)
+    P = solve_discrete_are(A, B, Q, R)
+    return np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A).astype(np.float32)

@@ -1,0 +1,78 @@
+"""Training checkpoints: written atomically, found by iteration, the newest few kept.
+
+A checkpoint holds everything a resumed run needs to go on as if it had not stopped: the actor and
+critic (observation normalizers included), the optimizer state and adaptive learning rate, the
+iteration and environment steps done, the curriculum position and the random number generators;
+and its identity (robot file, task, ablation, history), checked wherever it is loaded.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from opt2skill.data.atomic import atomic_path, remove_temporaries
+from opt2skill.errors import DataError
+from opt2skill.rl.run import check_format
+
+FORMAT = "opt2skill-checkpoint"
+FORMAT_VERSION = 1
+KEEP = 3  # newest checkpoints kept
+_NAME = re.compile(r"^model_(\d{8})\.pt$")
+
+
+def checkpoint_dir(run: Path) -> Path:
+    return Path(run) / "checkpoints"
+
+
+def save(run: Path, iteration: int, payload: dict[str, Any]) -> Path:
+    directory = checkpoint_dir(run)
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / f"model_{iteration:08d}.pt"
+    with atomic_path(path) as tmp:
+        torch.save({"format": FORMAT, "format_version": FORMAT_VERSION, "iteration": iteration, **payload}, tmp)
+    for old in list_checkpoints(run)[:-KEEP]:
+        old.unlink(missing_ok=True)
+    return path
+
+
+def list_checkpoints(run: Path) -> list[Path]:
+    """Checkpoint files of a run, oldest first (interrupted writes removed)."""
+    directory = checkpoint_dir(run)
+    if not directory.is_dir():
+        return []
+    remove_temporaries(directory)
+    return sorted(p for p in directory.iterdir() if _NAME.match(p.name))
+
+
+def latest(run: Path) -> Path | None:
+    found = list_checkpoints(run)
+    return found[-1] if found else None
+
+
+def identity(robot: str, robot_hash: str, task: str, ablation: str, history: int, stride: int) -> dict[str, Any]:
+    """What a checkpoint's networks are for: their inputs and outputs depend on all of it."""
+    return {"robot": robot, "robot_hash": robot_hash, "task": task, "ablation": ablation, "history": history,
+            "stride": stride}
+
+
+def check_identity(path: Path, data: dict[str, Any], expected: dict[str, Any]) -> None:
+    """DataError naming each difference between the checkpoint's identity and `expected` (checkpoints
+    written before identities were recorded have none and pass)."""
+    found = data.get("identity")
+    if found is None:
+        return
+    diff = [f"{k} {found.get(k)!r} (expected {v!r})" for k, v in expected.items() if found.get(k) != v]
+    if diff:
+        raise DataError(f"{path} is a checkpoint of another policy: {'; '.join(diff)}")
+
+
+def load(path: Path) -> dict[str, Any]:
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch raises many kinds on a corrupt or foreign file
+        raise DataError(f"{path} is not a readable checkpoint: {type(exc).__name__}: {str(exc).splitlines()[0]}") from None
+    return check_format(path, data, FORMAT, FORMAT_VERSION, "checkpoint")

@@ -1,0 +1,252 @@
+"""Distillation of the optimizer's feedback expert into the PPO actor (DAgger with DART noise).
+
+The actor is the network PPO trains (`rl.policy.build_actor`), fed the actor observations of the
+tracking environment (the noisy proprioception and partial reference; never the privileged state).
+Each iteration:
+
+1. **Collect** `steps_per_env` steps of every world. The executed action is
+   `share * expert + (1 - share) * actor + action_noise * N(0, 1)`; the expert's share falls from 1
+   to 0 over the first part of the stage (DAgger's mixing, DART's injected noise). Every visited
+   state where the expert is still valid (`ExpertConfig` limits) is stored with the expert's action
+   as its label; a world that leaves the expert's valid region is reset (nothing to learn there).
+2. **Learn**: `updates_per_iteration` Adam steps of mean-squared action error on minibatches of the
+   aggregated buffer (the newest `buffer_samples` labels). The observation normalizer follows the
+   collected observations.
+
+The worlds are stepped together and the expert labels them together (`EnvExpert.act`): no loop over
+worlds. Checkpoints (`rl.checkpoint`, under RUN/distill) hold the actor, the optimizer, the counters
+and the random generators; the aggregated buffer is not saved (a resumed stage refills it).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from rsl_rl.models import MLPModel
+from tensordict import TensorDict
+
+from opt2skill.data.atomic import dumps
+from opt2skill.envs import TrackingEnv
+from opt2skill.expert.acting import EnvExpert
+from opt2skill.rl import checkpoint
+from opt2skill.rl.distill_config import DistillConfig
+from opt2skill.rl.run import PROGRESS_FILE, trim_progress
+from opt2skill.rl.vec_env import EpisodeStats
+
+
+class LabelBuffer:
+    """The newest `capacity` (observation, expert action) pairs, a ring buffer of float32 tensors."""
+
+    def __init__(self, capacity: int, obs_dim: int, nu: int):
+        self.obs = torch.zeros(capacity, obs_dim)
+        self.label = torch.zeros(capacity, nu)
+        self.capacity, self.size, self._next = capacity, 0, 0
+
+    def add(self, obs: np.ndarray, label: np.ndarray) -> None:
+        k = len(obs)
+        if k == 0:
+            return
+        if k > self.capacity:
+            obs, label, k = obs[-self.capacity:], label[-self.capacity:], self.capacity
+        index = (self._next + np.arange(k)) % self.capacity
+        self.obs[index] = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32))
+        self.label[index] = torch.from_numpy(np.ascontiguousarray(label, dtype=np.float32))
+        self._next = (self._next + k) % self.capacity
+        self.size = min(self.size + k, self.capacity)
+
+    def sample(self, batch: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        index = torch.randint(0, self.size, (batch,), generator=generator)
+        return self.obs[index], self.label[index]
+
+
+class Distiller:
+    """DAgger + DART behaviour cloning of `expert` into `actor` on `env`."""
+
+    def __init__(self, env: TrackingEnv, expert: EnvExpert, actor: MLPModel, config: DistillConfig,
+                 run: Path | None = None, seed: int = 0):
+        config.check()
+        self.env, self.expert, self.actor, self.config = env, expert, actor, config
+        self.run = Path(run) if run is not None else None
+        self.steps_per_env = config.steps_per_env(env.sim.policy_dt)
+        self.batch = env.num_envs * self.steps_per_env
+        self.optimizer = torch.optim.Adam(actor.parameters(), lr=config.learning_rate)
+        self.buffer = LabelBuffer(config.buffer_samples, env.actor_dim, env.nu)
+        self.generator = torch.Generator().manual_seed(seed)
+        self.rng = np.random.default_rng(seed)
+        self.stats = EpisodeStats(tuple(env.config.rewards.terms()))
+        self.iteration, self.env_steps, self.elapsed = 0, 0, 0.0
+        self.total_iterations = 1
+        self._set_noise()
+        self._obs, _ = env.observations()
+
+    # ------------------------------------------------------------ one iteration
+
+    def _set_noise(self) -> None:
+        self.env.set_progress(1.0)  # penalties at full weight in the logged rewards
+        self.env.noise_factor = self.config.noise
+
+    @property
+    def progress(self) -> float:
+        return min(self.iteration / max(self.total_iterations, 1), 1.0)
+
+    def collect(self) -> dict[str, float]:
+        """One rollout of every world; labels into the buffer. The rollout's figures."""
+        env, cfg = self.env, self.config
+        share = cfg.expert_share(self.progress)
+        labelled = lost = 0
+        self.stats.clear()
+        self.actor.train()
+        seen = []
+        for _ in range(self.steps_per_env):
+            expert_action, valid = self.expert.act()
+            stray = np.flatnonzero(~valid)
+            if len(stray):  # left the expert's region: nothing to learn there, start these worlds afresh
+                lost += len(stray)
+                env.reset_worlds(stray)
+                self._obs = env.observations()[0]
+                expert_action, valid = self.expert.act()
+            obs = self._obs
+            seen.append(obs)
+            self.buffer.add(obs[valid], expert_action[valid])
+            labelled += int(valid.sum())
+            action = expert_action
+            if share < 1.0:
+                with torch.inference_mode():
+                    own = self.actor(TensorDict({"actor": torch.from_numpy(obs)}, batch_size=[len(obs)])).numpy()
+                action = share * expert_action + (1.0 - share) * own
+            if cfg.action_noise > 0:
+                action = action + cfg.action_noise * self.rng.standard_normal(action.shape)
+            result = env.step(action)
+            self.stats.add(result)
+            self._obs = result.actor
+        seen = torch.from_numpy(np.concatenate(seen))
+        self.actor.update_normalization(TensorDict({"actor": seen}, batch_size=[len(seen)]))
+        figures = self.stats.summary(env.sim.policy_dt)
+        figures.update({"distill/expert_share": share, "distill/labelled_fraction": labelled / self.batch,
+                        "distill/expert_lost_worlds": float(lost), "distill/buffer_samples": float(self.buffer.size)})
+        return figures
+
+    def learn(self) -> dict[str, float]:
+        """`updates_per_iteration` Adam steps of behaviour cloning on the buffer."""
+        cfg = self.config
+        lr = cfg.learning_rate_at(self.progress)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        losses = []
+        self.actor.train()
+        for _ in range(cfg.updates_per_iteration):
+            obs, label = self.buffer.sample(cfg.batch_size, self.generator)
+            prediction = self.actor(TensorDict({"actor": obs}, batch_size=[len(obs)]))
+            loss = torch.mean((prediction - label) ** 2)
+            self.optimizer.zero_grad()
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(self.actor.parameters(), 1.0)
+            self.optimizer.step()
+            losses.append(loss.item())
+        return {"distill/loss": float(np.mean(losses)), "distill/learning_rate": lr}
+
+    def train_iteration(self) -> dict[str, float]:
+        start = time.perf_counter()
+        figures = self.collect()
+        collected = time.perf_counter()
+        figures.update(self.learn())
+        learned = time.perf_counter()
+        self.iteration += 1
+        self.env_steps += self.batch
+        self.elapsed += learned - start
+        figures.update({"perf/env_steps_per_s": self.batch / (collected - start),
+                        "perf/learner_samples_per_s": self.config.updates_per_iteration * self.config.batch_size
+                        / (learned - collected), "perf/iteration_s": learned - start})
+        return figures
+
+    # ------------------------------------------------------------ the stage
+
+    def train(self, total_iterations: int, progress: bool = True, writer=None,
+              checkpoint_every: int = 50, checkpoint_minutes: float = 5.0) -> dict[str, float]:
+        """Run until `total_iterations`; checkpoint periodically, at the end and on Ctrl-C/SIGTERM."""
+        self.total_iterations = total_iterations
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total_iterations * self.batch, initial=self.iteration * self.batch, unit="step",
+                       unit_scale=True, desc="distilling", dynamic_ncols=True)
+        last_save, figures = time.monotonic(), {}
+        try:
+            while self.iteration < total_iterations:
+                figures = self.train_iteration()
+                self._log(figures, writer)
+                if bar is not None:
+                    bar.update(self.batch)
+                    bar.set_postfix_str(f"loss {figures['distill/loss']:.4f}, expert {figures['distill/expert_share']:.2f}",
+                                        refresh=False)
+                due = self.iteration % checkpoint_every == 0 or time.monotonic() - last_save > 60 * checkpoint_minutes
+                if self.run is not None and (due or self.iteration == total_iterations):
+                    self.save()
+                    last_save = time.monotonic()
+        except KeyboardInterrupt:
+            if self.run is not None and self.iteration > 0:
+                self.save()  # the last whole iteration; the rollout in flight is dropped
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        return figures
+
+    def _log(self, figures: dict[str, float], writer) -> None:
+        if writer is not None:
+            for key, value in figures.items():
+                writer.add_scalar(key, value, self.iteration)
+        if self.run is not None:
+            record = {"iteration": self.iteration, "env_steps": self.env_steps, "elapsed": self.elapsed, **figures}
+            with open(self.run / PROGRESS_FILE, "a") as f:
+                f.write(dumps(record) + "\n")
+
+    # ------------------------------------------------------------ checkpoints
+
+    def state(self) -> dict[str, Any]:
+        return {
+            "actor_state_dict": self.actor.state_dict(),
+            "optimizer_state_dict": self.optimizer.state_dict(),
+            "env_steps": self.env_steps,
+            "elapsed": self.elapsed,
+            "total_iterations": self.total_iterations,
+            "torch_rng": self.generator.get_state(),
+            "rng": self.rng.bit_generator.state,
+            "env_rng": self.env.rng.bit_generator.state,
+            "dims": {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu},
+            "identity": self.identity(),
+        }
+
+    def identity(self) -> dict[str, Any]:
+        env, obs = self.env, self.env.config.observations
+        return checkpoint.identity(env.robot.name, env.robot.hash, env.config.task, env.config.ablation, obs.history,
+                                   obs.stride)
+
+    def save(self) -> Path:
+        return checkpoint.save(self.run, self.iteration, self.state())
+
+    def restore(self, data: dict[str, Any], path: Path | str = "checkpoint") -> None:
+        checkpoint.check_identity(Path(path), data, self.identity())
+        self.actor.load_state_dict(data["actor_state_dict"])
+        self.optimizer.load_state_dict(data["optimizer_state_dict"])
+        self.iteration, self.env_steps, self.elapsed = data["iteration"], data["env_steps"], data["elapsed"]
+        self.total_iterations = data["total_iterations"]
+        self.generator.set_state(data["torch_rng"])
+        self.rng.bit_generator.state = data["rng"]
+        self.env.rng.bit_generator.state = data["env_rng"]
+        self.env.reset()
+        self._set_noise()
+        self._obs, _ = self.env.observations()
+
+    def resume_latest(self) -> bool:
+        path = checkpoint.latest(self.run) if self.run is not None else None
+        if path is None:
+            return False
+        self.restore(checkpoint.load(path), path)
+        trim_progress(self.run, self.iteration)
+        return True

@@ -1,0 +1,111 @@
+"""Settings of the two-stage pipeline: distil the optimizer's feedback expert into the actor, then PPO.
+
+One frozen dataclass with defaults (docs/distill.md gives the reasoning and the measurements):
+
+- the expert (`ExpertConfig`: how its torques become held PD targets, how far it is trusted);
+- the conditions it is distilled under: the Table II randomizations it tolerates, narrowed from the
+  task's config by `distillation_tracking_config` (flat ground, short delays, friction near the
+  plan's, robot-side ranges halved), and the actor's observation noise (the labels never see it);
+- DAgger with DART noise: the executed action blends the expert's and the actor's, the expert's share
+  falling from 1 to 0 over `expert_share_until` of the stage, plus Gaussian noise on what is executed;
+  every visited state where the expert is still valid is labelled with the expert's action;
+- behaviour cloning: mean-squared action error on an aggregated buffer of labelled samples;
+- the PPO stage: small initial action noise and a critic warm-up with the actor frozen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from opt2skill.envs.config import TrackingConfig
+from opt2skill.errors import ConfigError
+from opt2skill.expert.acting import ExpertConfig
+from opt2skill.rl.config import PPOConfig
+
+ROBOT_SIDE = ("motor_strength", "kp_factor", "kd_factor", "mass_scale", "gravity_scale")
+
+
+@dataclass(frozen=True)
+class DistillConfig:
+    expert: ExpertConfig = field(default_factory=ExpertConfig)
+    # Conditions of the distillation stage (the expert's tolerated part of Table II).
+    delay: tuple[float, float] = (0.0, 0.005)  # s
+    friction_scale: tuple[float, float] = (0.7, 1.0)
+    robot_range: float = 0.5  # fraction of Table II's robot-side ranges kept, around 1
+    rough_fraction: float = 0.0  # the expert falls on the +-2 cm rough terrain
+    noise: float = 0.0  # factor on the actor's observation noise (Table II) while distilling (docs/distill.md)
+    # DAgger and DART.
+    rollout_seconds: float = 0.12  # s of experience per world per iteration
+    expert_share_until: float = 0.3  # fraction of the stage over which the expert's share falls 1 -> 0
+    action_noise: float = 0.1  # std of the Gaussian added to executed actions, action units
+    # Behaviour cloning.
+    buffer_samples: int = 200_000  # labelled samples kept (the newest)
+    batch_size: int = 2048
+    updates_per_iteration: int = 8  # about 5-10 gradient uses per collected sample at 64-128 worlds
+    learning_rate: float = 1e-3  # Adam, decayed linearly to `final_learning_rate` over the stage
+    final_learning_rate: float = 1e-4
+    # PPO fine-tuning.
+    finetune_std: float = 0.1  # initial action std of PPO, action units (plain PPO starts at 0.2)
+    # Initial PPO learning rate (then adapted to the KL as in plain PPO). The KL of an update grows as
+    # (mean change / std)^2: at half plain PPO's std, half its rate moves the policy as far.
+    finetune_learning_rate: float = 2.5e-5
+    critic_warmup_iterations: int = 30  # PPO iterations with the actor frozen
+
+    def check(self) -> None:
+        def require(ok: bool, message: str) -> None:
+            if not ok:
+                raise ConfigError(message)
+
+        self.expert.check()
+        for name in ("delay", "friction_scale"):
+            lo, hi = getattr(self, name)
+            require(0 <= lo <= hi, f"distill {name} must be a range 0 <= low <= high, got ({lo}, {hi})")
+        require(self.delay[1] <= 0.02, f"distill delay must be at most 0.02 s, got {self.delay[1]}")
+        require(0 <= self.robot_range <= 1, f"distill robot_range must be in [0, 1], got {self.robot_range}")
+        require(0 <= self.rough_fraction <= 1, f"distill rough_fraction must be in [0, 1], got {self.rough_fraction}")
+        require(self.noise >= 0, f"distill noise must be >= 0, got {self.noise}")
+        require(self.rollout_seconds > 0, f"distill rollout_seconds must be > 0, got {self.rollout_seconds}")
+        require(0 <= self.expert_share_until <= 1, f"expert_share_until must be in [0, 1], got {self.expert_share_until}")
+        require(self.action_noise >= 0, f"distill action_noise must be >= 0, got {self.action_noise}")
+        require(self.buffer_samples >= self.batch_size >= 1, "distill needs buffer_samples >= batch_size >= 1")
+        require(self.updates_per_iteration >= 1, "distill updates_per_iteration must be >= 1")
+        require(self.learning_rate > 0 and self.final_learning_rate > 0, "distill learning rates must be > 0")
+        require(self.finetune_std > 0, f"finetune_std must be > 0, got {self.finetune_std}")
+        require(self.finetune_learning_rate > 0, f"finetune_learning_rate must be > 0, got {self.finetune_learning_rate}")
+        require(self.critic_warmup_iterations >= 0, "critic_warmup_iterations must be >= 0")
+
+    def steps_per_env(self, dt: float) -> int:
+        return max(1, round(self.rollout_seconds / dt))
+
+    def expert_share(self, progress: float) -> float:
+        """The expert's share of the executed action at stage progress in [0, 1]."""
+        if self.expert_share_until <= 0:
+            return 0.0
+        return max(0.0, 1.0 - progress / self.expert_share_until)
+
+    def learning_rate_at(self, progress: float) -> float:
+        p = min(max(progress, 0.0), 1.0)
+        return self.learning_rate + (self.final_learning_rate - self.learning_rate) * p
+
+    def finetune_ppo(self, ppo: PPOConfig | None = None) -> PPOConfig:
+        """PPO settings of the fine-tuning stage: those of plain PPO with a small initial action noise
+        and learning rate."""
+        return dataclasses.replace(ppo or PPOConfig(), init_std=self.finetune_std,
+                                   learning_rate=self.finetune_learning_rate)
+
+
+def distillation_tracking_config(config: TrackingConfig, distill: DistillConfig) -> TrackingConfig:
+    """The task's config with Table II narrowed to what the expert tolerates (observation noise is set
+    by the stage through the curriculum's noise factor)."""
+    r = config.randomization
+    narrowed = {}
+    for name in ROBOT_SIDE:
+        lo, hi = getattr(r, name)
+        narrowed[name] = (1 + distill.robot_range * (lo - 1), 1 + distill.robot_range * (hi - 1))
+    randomization = dataclasses.replace(
+        r, delay=(max(r.delay[0], distill.delay[0]), min(r.delay[1], distill.delay[1])),
+        friction_scale=(max(r.friction_scale[0], distill.friction_scale[0]), min(r.friction_scale[1], distill.friction_scale[1])),
+        rough_fraction=min(r.rough_fraction, distill.rough_fraction), **narrowed,
+    )
+    return dataclasses.replace(config, randomization=randomization)

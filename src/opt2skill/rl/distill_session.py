@@ -1,0 +1,200 @@
+"""`opt2skill train --init distill`: distil the optimizer's feedback expert into the actor, then PPO.
+
+One command, two stages, each resumable (docs/distill.md):
+
+    RUN/run.json, RUN/checkpoints/, RUN/progress.jsonl, RUN/tb/   the PPO stage, as a plain run
+                                                                 (play, eval, export read it unchanged)
+    RUN/distill/stage.json                                       the distillation settings (checked on resume)
+    RUN/distill/checkpoints/, RUN/distill/progress.jsonl        the distillation stage
+    RUN/tb/distill/                                              its TensorBoard events
+
+1. **Distillation** (`rl.distill.Distiller`) for `distill_steps` environment steps, under the Table II
+   conditions the expert tolerates (`distillation_tracking_config`).
+2. **PPO** from the distilled actor: the task's full randomization and curriculum, initial action
+   noise `finetune_std`; its first `critic_warmup_iterations` iterations train the critic only (the
+   actor is frozen, its observation normalizer too), so the first policy updates see useful advantages.
+
+Both stages log to TensorBoard with one step axis, the environment steps since the run began (the
+PPO stage's steps continue the distillation's), and wall-clock time continues across the stages in
+`elapsed`. A rerun of the same command continues whichever stage was interrupted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from opt2skill.data.atomic import write_json
+from opt2skill.data.record import FRAME_DT
+from opt2skill.envs import ReferenceBank, TrackingEnv, tracking_config
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.expert.acting import EnvExpert
+from opt2skill.provenance import provenance
+from opt2skill.rl import checkpoint
+from opt2skill.rl.distill import Distiller
+from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config
+from opt2skill.rl.policy import build_actor
+from opt2skill.rl.run import RunSpec, differences, open_run, trim_progress
+from opt2skill.rl.session import TrainRequest, open_dataset, set_threads
+from opt2skill.rl.trainer import Schedule, Trainer
+
+STAGE_DIR = "distill"
+STAGE_FILE = "stage.json"
+
+
+class _EnvStepWriter:
+    """A TensorBoard writer whose step is a shared counter (environment steps over both stages)."""
+
+    def __init__(self, writer, step):
+        self.writer, self.step = writer, step
+
+    def add_scalar(self, tag: str, value: float, _step: int | None = None) -> None:
+        self.writer.add_scalar(tag, value, self.step())
+
+
+def _writer(directory: Path, first_step: int):
+    from torch.utils.tensorboard import SummaryWriter
+
+    return SummaryWriter(str(directory), purge_step=first_step + 1, flush_secs=10)
+
+
+def _open_stage(run: Path, config: DistillConfig, distill_steps: int) -> Path:
+    """RUN/distill with its settings recorded; a rerun must bring the same settings."""
+    stage = Path(run) / STAGE_DIR
+    identity = {"distill": json.loads(json.dumps(dataclasses.asdict(config))), "distill_steps": distill_steps}
+    path = stage / STAGE_FILE
+    if path.is_file():
+        diff = differences(json.loads(path.read_text()), identity)
+        if diff:
+            raise ConfigError(f"{run} was distilled with other settings ({'; '.join(diff[:4])}); choose another --out")
+    else:
+        stage.mkdir(parents=True, exist_ok=True)
+        write_json(path, identity)
+    return stage
+
+
+def _check_gains(dataset) -> None:
+    missing = [i for i in range(len(dataset)) if "gains" not in dataset.meta(i).knot_names]
+    if missing:
+        raise DataError(f"dataset {dataset.root}: {len(missing)} of {len(dataset)} trajectories have no feedback gains "
+                        "(the expert needs them); regenerate it with `opt2skill generate ... --keep-gains`")
+
+
+def distill_stage(request: TrainRequest, dataset, robot, config, distill: DistillConfig, distill_steps: int,
+                  threads: int, progress: bool) -> tuple[dict[str, Any], int]:
+    """Run (or resume) the distillation stage: its final checkpoint's contents and the iteration it
+    started from (0 for a fresh stage)."""
+    stage = _open_stage(request.out, distill, distill_steps)
+    batch = request.num_envs * distill.steps_per_env(FRAME_DT)
+    total = -(-distill_steps // batch)
+    latest = checkpoint.latest(stage)
+    done = checkpoint.load(latest) if latest is not None else None
+    if done is not None and done["iteration"] >= total:
+        return done, done["iteration"]  # finished before (killed before the PPO stage's first checkpoint)
+    env_config = distillation_tracking_config(config, distill)
+    bank = ReferenceBank.from_dataset(robot, dataset, env_config.observations.end_effectors)
+    with TrackingEnv(robot, bank, env_config, request.num_envs, seed=request.seed, threads=threads) as env:
+        torch.manual_seed(request.seed)
+        actor = build_actor(distill.finetune_ppo(), env.actor_dim, env.critic_dim, env.nu)
+        expert = EnvExpert(env, [dataset[int(p)] for p in bank.positions], distill.expert)
+        distiller = Distiller(env, expert, actor, distill, stage, seed=request.seed)
+        if not distiller.resume_latest():
+            trim_progress(stage, 0)
+        started = distiller.iteration
+        writer = _writer(Path(request.out) / "tb" / STAGE_DIR, distiller.env_steps)
+        try:
+            distiller.train(total, progress=progress, writer=_EnvStepWriter(writer, lambda: distiller.env_steps),
+                            checkpoint_every=request.checkpoint_every)
+        finally:
+            writer.close()
+    return checkpoint.load(checkpoint.latest(stage)), started
+
+
+def set_actor_frozen(trainer: Trainer, frozen: bool) -> None:
+    """Freeze the actor for the critic warm-up: no gradients, and its observation normalizer stops
+    following the data (eval mode); the critic learns from the actions the distilled actor takes."""
+    actor = trainer.alg.actor
+    for p in actor.parameters():
+        p.requires_grad_(not frozen)
+    actor.train(not frozen)
+
+
+def start_from_distilled(trainer: Trainer, distilled: dict[str, Any]) -> None:
+    """Load the distilled actor into PPO; give the critic's normalizer statistics of the states the
+    distilled actor visits (one rollout's worth of steps), then start new episodes."""
+    trainer.alg.actor.load_state_dict(distilled["actor_state_dict"])
+    trainer.elapsed = distilled["elapsed"]
+    observations = []
+    with torch.inference_mode():
+        obs = trainer.venv.get_observations()
+        for _ in range(trainer.steps_per_env):
+            obs, *_ = trainer.venv.step(trainer.alg.actor(obs, stochastic_output=True))
+            observations.append(obs)
+    trainer.alg.critic.update_normalization(torch.cat(observations))
+    trainer.env.reset()
+    trainer.venv.refresh()
+    trainer.venv.stats.clear()
+
+
+def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool = True,
+          distill: DistillConfig | None = None) -> dict[str, Any]:
+    """Distil (or resume distilling), then train with PPO (or resume it); the last PPO iteration's figures."""
+    request.check()
+    if not (isinstance(distill_steps, int) and distill_steps >= 1):
+        raise ConfigError(f"--distill-steps must be a positive number of environment steps, got {distill_steps}")
+    distill = distill or DistillConfig()
+    distill.check()
+    dataset, robot = open_dataset(request.dataset)
+    _check_gains(dataset)
+    config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history)
+    ppo = distill.finetune_ppo()
+    spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
+                   trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
+                   num_envs=request.num_envs, seed=request.seed)
+    invocation = {"command": request.command, "steps": request.steps, "init": "distill", "distill_steps": distill_steps,
+                  "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
+    existed = open_run(request.out, spec, invocation)
+    if existed and checkpoint.latest(request.out) is not None and not (Path(request.out) / STAGE_DIR).is_dir():
+        raise ConfigError(f"{request.out} is a plain PPO run; choose another --out for --init distill")
+    threads = set_threads(request.threads)
+    distilled, resumed = None, {"distill": None, "ppo": None}  # the iteration each stage went on from
+    if checkpoint.latest(request.out) is None:  # the PPO stage has not started: distil first
+        distilled, resumed["distill"] = distill_stage(request, dataset, robot, config, distill, distill_steps,
+                                                      threads, progress)
+    else:
+        _open_stage(request.out, distill, distill_steps)  # same settings as before
+    offset = checkpoint.load(checkpoint.latest(Path(request.out) / STAGE_DIR))["env_steps"] if distilled is None \
+        else distilled["env_steps"]
+
+    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
+    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
+        trainer = Trainer(env, ppo, request.out, seed=request.seed)
+        if not trainer.resume_latest():
+            trim_progress(request.out, 0)
+            start_from_distilled(trainer, distilled)
+        resumed["ppo"] = trainer.iteration
+        if trainer.iteration >= trainer.iterations_for(request.steps):
+            return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True,
+                    "resumed_from": resumed}
+        writer = _writer(Path(request.out) / "tb", offset + trainer.env_steps)
+        logged = _EnvStepWriter(writer, lambda: offset + trainer.env_steps)
+        schedule = Schedule(request.steps, request.checkpoint_every)
+        figures = {}
+        try:
+            if trainer.iteration < distill.critic_warmup_iterations:
+                set_actor_frozen(trainer, True)
+                try:
+                    figures = trainer.train(schedule, progress=progress, writer=logged,
+                                            stop_after=distill.critic_warmup_iterations)
+                finally:
+                    set_actor_frozen(trainer, False)
+            figures = trainer.train(schedule, progress=progress, writer=logged) or figures  # {} if the warm-up ended it
+        finally:
+            writer.close()
+        return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "elapsed": trainer.elapsed,
+                "distill_env_steps": offset, "resumed_from": resumed, "checkpoint": str(checkpoint.latest(request.out)),
+                **figures}

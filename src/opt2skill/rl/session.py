@@ -1,0 +1,143 @@
+"""`opt2skill train` and `opt2skill play` without the command line: checked requests, the run
+directory, the environment, the trainer; resumable and logged (docs/training.md)."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from opt2skill.data.reader import Dataset
+from opt2skill.envs import ABLATIONS, ReferenceBank, TrackingEnv, evaluation_config, tracking_config
+from opt2skill.envs.evaluation import TrackedMotion, track
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.model import load_robot
+from opt2skill.provenance import provenance
+from opt2skill.rl import checkpoint
+from opt2skill.rl.config import PPOConfig
+from opt2skill.rl.policy import Policy, load_policy
+from opt2skill.rl.run import RunSpec, open_run, trim_progress
+from opt2skill.rl.trainer import Schedule, Trainer
+
+MAX_ENVS = 4096
+
+
+@dataclass(frozen=True)
+class TrainRequest:
+    dataset: Path
+    out: Path
+    steps: int = 10_000_000  # environment steps, all worlds together
+    num_envs: int = 128
+    history: int = 10
+    ablation: str = "pos_f_t"
+    seed: int = 0
+    threads: int | None = None  # physics and torch threads; None: every core
+    checkpoint_every: int = 50  # iterations
+    command: str = ""
+
+    def check(self) -> None:
+        if not (isinstance(self.steps, int) and self.steps >= 1):
+            raise ConfigError(f"--steps must be a positive number of environment steps, got {self.steps}")
+        if not (1 <= self.num_envs <= MAX_ENVS):
+            raise ConfigError(f"--num-envs must be in [1, {MAX_ENVS}], got {self.num_envs}")
+        if not (0 <= self.history <= 50):
+            raise ConfigError(f"--history must be in [0, 50] samples, got {self.history}")
+        if self.ablation not in ABLATIONS:
+            raise ConfigError(f"--ablation must be one of {', '.join(ABLATIONS)}, got '{self.ablation}'")
+        if self.seed < 0:
+            raise ConfigError(f"--seed must be >= 0, got {self.seed}")
+        if self.threads is not None and self.threads < 1:
+            raise ConfigError(f"--threads must be >= 1, got {self.threads}")
+        if self.checkpoint_every < 1:
+            raise ConfigError(f"--checkpoint-every must be >= 1 iteration, got {self.checkpoint_every}")
+
+
+def open_dataset(path: Path):
+    """The dataset at `path` and the robot it was made for (checked: accepted trajectories, robot file)."""
+    dataset = Dataset.open(path)
+    if len(dataset) == 0:
+        raise DataError(f"dataset {path} has no accepted trajectories to train on")
+    robot = load_robot(dataset.identity.get("robot", "digit"))
+    if dataset.identity.get("robot_hash") != robot.hash:
+        raise DataError(f"dataset {path} was made with a different '{robot.name}' robot file "
+                        f"(hash {str(dataset.identity.get('robot_hash'))[:12]}, installed {robot.hash[:12]})")
+    return dataset, robot
+
+
+def set_threads(threads: int | None) -> int:
+    """Torch threads = physics threads = cores: collection and learning alternate, so they never
+    compete (docs/training.md)."""
+    n = threads or os.cpu_count() or 1
+    torch.set_num_threads(n)
+    return n
+
+
+def train(request: TrainRequest, progress: bool = True) -> dict[str, Any]:
+    """Train (or resume) the run `request.out`; the last iteration's figures."""
+    request.check()
+    dataset, robot = open_dataset(request.dataset)
+    config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history)
+    ppo = PPOConfig()
+    spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
+                   trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
+                   num_envs=request.num_envs, seed=request.seed)
+    invocation = {"command": request.command, "steps": request.steps,
+                  "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
+    existed = open_run(request.out, spec, invocation)
+    threads = set_threads(request.threads)
+    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
+    from torch.utils.tensorboard import SummaryWriter
+
+    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
+        trainer = Trainer(env, ppo, request.out, seed=request.seed)
+        if not (existed and trainer.resume_latest()):
+            trim_progress(request.out, 0)
+            trainer.warm_up_normalizers()
+        if trainer.iteration >= trainer.iterations_for(request.steps):
+            return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True}
+        writer = SummaryWriter(str(Path(request.out) / "tb"), purge_step=trainer.iteration + 1, flush_secs=10)
+        try:
+            figures = trainer.train(Schedule(request.steps, request.checkpoint_every), progress=progress, writer=writer)
+        finally:
+            writer.close()
+        return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "elapsed": trainer.elapsed,
+                "checkpoint": str(checkpoint.latest(request.out)), **figures}
+
+
+@dataclass
+class PlayResult:
+    policy: Policy
+    spec: RunSpec
+    motions: list[TrackedMotion]
+    errors: list[dict[str, float]]  # eval.metrics tracking errors per motion
+
+
+def play(run: Path, n: int = 4, randomize: bool = False, noise: bool = False, seed: int = 0) -> PlayResult:
+    """Roll the newest checkpoint out on the run's first `n` references from frame 0, deterministic
+    actions, randomization and noise off unless asked."""
+    from opt2skill.eval.metrics import tracking_errors
+
+    if n < 1:
+        raise ConfigError(f"--n must be >= 1, got {n}")
+    policy, spec = load_policy(run)
+    dataset, robot = open_dataset(Path(spec.dataset))
+    if dataset.identity != spec.dataset_identity:
+        raise DataError(f"the dataset at {spec.dataset} is no longer the one run {run} was trained on")
+    n = min(n, len(dataset))
+    subset = np.arange(n)
+    config = evaluation_config(spec.tracking, randomize=randomize, noise=noise)
+    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors, subset=subset)
+    set_threads(None)
+    with TrackingEnv(robot, bank, config, n, seed=seed) as env:
+        env.set_progress(1.0)
+        motions = track(env, policy, np.arange(n))
+    errors = []
+    for motion in motions:
+        reference = dataset[motion.position]
+        fell = motion.fell
+        errors.append(tracking_errors(reference, motion.record(robot, reference), fell=fell).as_dict())
+    return PlayResult(policy, spec, motions, errors)

@@ -1,0 +1,231 @@
+"""PPO training of a tracking policy: rsl_rl's PPO, our loop (progress bar, logs, checkpoints, resume).
+
+rsl_rl supplies the algorithm (PPO with the adaptive learning rate), the models (MLPs with
+observation normalization, Gaussian actions) and the rollout storage. The loop is ours because a
+run here must show a progress bar with an ETA, tell the environment the training progress (the
+noise curriculum), write checkpoints atomically with the random generators and resume from them,
+and log every reward term: rsl_rl's `OnPolicyRunner` prints a page per iteration and saves without
+those. Its loop is the same sequence of `act`, `process_env_step`, `compute_returns`, `update`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from rsl_rl.algorithms import PPO
+
+from opt2skill.data.atomic import dumps
+from opt2skill.envs import TrackingEnv
+from opt2skill.rl import checkpoint
+from opt2skill.rl.config import PPOConfig
+from opt2skill.rl.run import PROGRESS_FILE, trim_progress
+from opt2skill.rl.vec_env import TrackingVecEnv
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """How long and how often: environment steps (all worlds), checkpoint cadence."""
+
+    total_steps: int
+    checkpoint_every: int = 50  # iterations
+    checkpoint_minutes: float = 5.0  # also checkpoint when this much wall time has passed
+
+
+def build_algorithm(venv: TrackingVecEnv, ppo: PPOConfig) -> PPO:
+    """rsl_rl's PPO with our actor and critic settings (its construction chatter kept off the terminal)."""
+    cfg = ppo.rsl_rl(venv.env.sim.policy_dt)
+    with contextlib.redirect_stdout(io.StringIO()):
+        alg = PPO.construct_algorithm(venv.get_observations(), venv, cfg, "cpu")
+    last = [m for m in alg.actor.mlp if isinstance(m, torch.nn.Linear)][-1]
+    with torch.no_grad():  # the untrained policy's mean action is ~0: the default pose, not a random offset
+        last.weight.mul_(ppo.actor_output_gain)
+        last.bias.zero_()
+    return alg
+
+
+class Trainer:
+    def __init__(self, env: TrackingEnv, ppo: PPOConfig, run: Path | None = None, seed: int = 0):
+        self.env, self.ppo, self.run = env, ppo, (Path(run) if run is not None else None)
+        torch.manual_seed(seed)
+        self.venv = TrackingVecEnv(env, ppo.reward_scale or None)
+        self.alg = build_algorithm(self.venv, ppo)
+        self.steps_per_env = ppo.steps_per_env(env.sim.policy_dt)
+        self.batch = env.num_envs * self.steps_per_env
+        self.iteration = 0  # completed iterations
+        self.env_steps = 0
+        self.elapsed = 0.0  # wall seconds spent training, over all invocations
+        self._updating = False
+
+    # ------------------------------------------------------------ checkpoints
+
+    def state(self) -> dict[str, Any]:
+        return {
+            "alg": self.alg.save(),
+            "learning_rate": self.alg.learning_rate,
+            "env_steps": self.env_steps,
+            "elapsed": self.elapsed,
+            "progress": self.env.progress,
+            "torch_rng": torch.get_rng_state(),
+            "env_rng": self.env.rng.bit_generator.state,
+            "dims": {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu},
+            "identity": self.identity(),
+        }
+
+    def identity(self) -> dict[str, Any]:
+        env = self.env
+        obs = env.config.observations
+        return checkpoint.identity(env.robot.name, env.robot.hash, env.config.task, env.config.ablation, obs.history,
+                                   obs.stride)
+
+    def save(self) -> Path:
+        return checkpoint.save(self.run, self.iteration, self.state())
+
+    def restore(self, data: dict[str, Any], path: Path | str = "checkpoint") -> None:
+        """Continue from a checkpoint: models, optimizer, learning rate, counters, curriculum, RNGs.
+        The worlds start new episodes (the episodes in flight at the kill are not in the checkpoint)."""
+        checkpoint.check_identity(Path(path), data, self.identity())
+        self.alg.load(data["alg"], None, strict=True)
+        self.alg.learning_rate = data["learning_rate"]
+        for group in self.alg.optimizer.param_groups:
+            group["lr"] = data["learning_rate"]
+        self.iteration, self.env_steps, self.elapsed = data["iteration"], data["env_steps"], data["elapsed"]
+        torch.set_rng_state(data["torch_rng"])
+        self.env.rng.bit_generator.state = data["env_rng"]
+        self.env.set_progress(data["progress"])
+        self.env.reset()
+        self.venv.refresh()
+
+    def resume_latest(self) -> bool:
+        path = checkpoint.latest(self.run)
+        if path is None:
+            return False
+        self.restore(checkpoint.load(path), path)
+        trim_progress(self.run, self.iteration)
+        return True
+
+    # ------------------------------------------------------------ training
+
+    def warm_up_normalizers(self) -> None:
+        """Give the observation normalizers statistics before the first rollout.
+
+        rsl_rl updates them after each PPO update, so the first rollout would feed raw observations
+        (contact forces in hundreds of newtons, gains in hundreds) to the fresh networks, and the
+        action history would then feed the resulting wild actions back. One rollout's worth of steps
+        with actions drawn like the initial policy's (mean 0, its initial std) gives statistics of
+        the states the first rollout will see; the worlds then start new episodes.
+        """
+        observations = []
+        std = self.ppo.init_std
+        with torch.no_grad():
+            for _ in range(self.steps_per_env):
+                obs, *_ = self.venv.step(std * torch.randn(self.env.num_envs, self.env.nu))
+                observations.append(obs)
+            batch = torch.cat(observations)
+            self.alg.actor.update_normalization(batch)
+            self.alg.critic.update_normalization(batch)
+        self.env.reset()
+        self.venv.refresh()
+        self.venv.stats.clear()
+
+    def iterations_for(self, total_steps: int) -> int:
+        return math.ceil(total_steps / self.batch)
+
+    def train_iteration(self) -> dict[str, float]:
+        """Collect one rollout of every world, update the policy; the iteration's figures."""
+        alg, venv = self.alg, self.venv
+        venv.stats.clear()
+        start = time.perf_counter()
+        obs = venv.get_observations()
+        with torch.inference_mode():
+            for _ in range(self.steps_per_env):
+                actions = alg.act(obs)
+                obs, rewards, dones, extras = venv.step(actions)
+                alg.process_env_step(obs, rewards, dones, extras)
+            alg.compute_returns(obs)
+        collected = time.perf_counter()
+        self._updating = True  # an interrupt now would leave the networks half updated
+        losses = alg.update()
+        self._updating = False
+        learned = time.perf_counter()
+        self.iteration += 1
+        self.env_steps += self.batch
+        self.elapsed += learned - start
+        figures = venv.stats.summary(self.env.sim.policy_dt)
+        figures.update({f"loss/{k}": float(v) for k, v in losses.items()})
+        figures.update({
+            "policy/learning_rate": float(alg.learning_rate),
+            "policy/action_std": float(alg.get_policy().output_std.detach().mean()),
+            "curriculum/progress": self.env.progress,
+            "curriculum/noise_factor": self.env.noise_factor,
+            "curriculum/penalty_factor": self.env.penalty_factor,
+            "perf/env_steps_per_s": self.batch / (collected - start),
+            "perf/learner_samples_per_s": self.batch * self.ppo.num_learning_epochs / (learned - collected),
+            "perf/iteration_s": learned - start,
+        })
+        return figures
+
+    def train(self, schedule: Schedule, progress: bool = True, writer=None,
+              stop_after: int | None = None) -> dict[str, float]:
+        """Train until `schedule.total_steps` environment steps (or, with `stop_after`, until that
+        many iterations are done; the schedule's total still sets the curriculum progress);
+        checkpoint periodically and at the end, and when interrupted by Ctrl-C or SIGTERM during a
+        rollout (an interrupt during an update keeps the last checkpoint: the networks would be
+        half updated)."""
+        total_iterations = self.iterations_for(schedule.total_steps)
+        last = total_iterations if stop_after is None else min(stop_after, total_iterations)
+        bar = _bar(progress, total_iterations * self.batch, self.env_steps)
+        last_save, figures = time.monotonic(), {}
+        try:
+            while self.iteration < last:
+                self.env.set_progress(self.env_steps / (total_iterations * self.batch))
+                figures = self.train_iteration()
+                self._log(figures, writer)
+                if bar is not None:
+                    bar.update(self.batch)
+                    bar.set_postfix_str(_postfix(figures), refresh=False)
+                due = self.iteration % schedule.checkpoint_every == 0 or (
+                    time.monotonic() - last_save > 60 * schedule.checkpoint_minutes)
+                if self.run is not None and (due or self.iteration == last):
+                    self.save()
+                    last_save = time.monotonic()
+        except KeyboardInterrupt:
+            if self.run is not None and self.iteration > 0 and not self._updating:
+                self.save()  # the networks of the last whole iteration (the rollout in flight is dropped)
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        return figures
+
+    def _log(self, figures: dict[str, float], writer) -> None:
+        if writer is not None:
+            for key, value in figures.items():
+                writer.add_scalar(key, value, self.iteration)
+            writer.add_scalar("perf/env_steps_total", self.env_steps, self.iteration)
+        if self.run is not None:
+            record = {"iteration": self.iteration, "env_steps": self.env_steps, "elapsed": self.elapsed, **figures}
+            with open(self.run / PROGRESS_FILE, "a") as f:
+                f.write(dumps(record) + "\n")
+
+
+def _bar(enabled: bool, total: int, done: int):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=done, unit="step", unit_scale=True, desc="training", dynamic_ncols=True)
+
+
+def _postfix(f: dict[str, float]) -> str:
+    parts = [f"reward/step {f['reward/step']:.3f}"]
+    if "episode/length_s" in f:
+        parts.append(f"episode {f['episode/length_s']:.2f} s")
+    parts.append(f"env {f['perf/env_steps_per_s']:.0f}/s")
+    return ", ".join(parts)

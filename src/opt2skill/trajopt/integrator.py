@@ -1,0 +1,129 @@
+"""A coarse-grid step that lands where the 200 Hz frames will: semi-implicit Euler matched to substeps.
+
+The frames of a solved motion are a 5-ms semi-implicit Euler rollout of the optimizer's own contact
+dynamics (`trajopt.frames`). Over one coarse node of `dt = N * 5 ms` with the torque held and the
+acceleration a roughly constant, those N steps give
+
+    v' = v + a dt,    q' = q (+) (v dt + a dt^2 (N + 1) / (2 N)),
+
+while Crocoddyl's semi-implicit Euler at `dt` moves the configuration by `v dt + a dt^2`. With the
+swing-leg accelerations of fast walking (150 to 200 rad/s^2 at the knee) the difference is 0.05 to
+0.1 rad per 30-ms node: the frames cannot follow such a plan, their feedback fights the gap and the
+cone limits of the rollout make it drift (docs/trajopt.md). This model uses the matched position
+update at the same cost as Euler (one evaluation of the dynamics): velocities still follow
+`v' = v + a dt`, so the record's inverse-dynamics convention on the knots is unchanged.
+
+Crocoddyl's C++ integrators have no such option, so this is a Python action model around the C++
+differential model. The Python part is the integration and the chain rule, written on views of the
+data's arrays (taken once) with the floating base's 6x6 blocks from Pinocchio: it adds about 15 us to
+a node's `calc` and 40 us to its `calcDiff` (about 220 us in the contact dynamics), where the first
+version, through `Jintegrate` and attribute copies, added 100 to 130 us.
+"""
+
+from __future__ import annotations
+
+import crocoddyl
+import numpy as np
+import pinocchio as pin
+
+
+class MatchedEulerModel(crocoddyl.ActionModelAbstract):
+    """Integrated action model: `differential` over `dt`, position update matched to `substeps` Euler steps."""
+
+    def __init__(self, differential, dt: float, substeps: int, share_data: bool = False):
+        if dt <= 0 or substeps < 1:
+            raise ValueError(f"MatchedEulerModel needs dt > 0 and substeps >= 1, got {dt}, {substeps}")
+        joints = differential.state.pinocchio.joints
+        if len(joints) < 2 or joints[1].shortname() != "JointModelFreeFlyer":
+            raise ValueError("MatchedEulerModel is written for a floating-base robot (a free flyer as first joint)")
+        crocoddyl.ActionModelAbstract.__init__(self, differential.state, differential.nu, differential.nr)
+        self.differential = differential
+        self.dt = float(dt)
+        self.substeps = int(substeps)
+        self.position_dt2 = self.dt**2 * (substeps + 1) / (2 * substeps)  # 1 * dt^2 for one substep (Euler)
+        self.nv = differential.state.nv
+        self.u_lb = differential.u_lb
+        self.u_ub = differential.u_ub
+        self.share_data = share_data
+        self._data = None
+
+    def calc(self, data, x, u=None):
+        dd = data.differential
+        if u is None:  # evaluated as a terminal node: cost only, no step (as Crocoddyl's integrators)
+            self.differential.calc(dd, x)
+            data.xnext[:] = x
+            data.cost = dd.cost
+            return
+        self.differential.calc(dd, x, u)
+        nv, dx, a = self.nv, data.dx, data.a
+        np.multiply(a, self.position_dt2, out=dx[:nv])
+        dx[:nv] += self.dt * x[-nv:]
+        np.multiply(a, self.dt, out=dx[nv:])
+        data.xnext[:] = self.state.integrate(x, dx)
+        data.cost = self.dt * dd.cost
+
+    def calcDiff(self, data, x, u=None):
+        dd = data.differential
+        if u is None:
+            self.differential.calcDiff(dd, x)
+            data.Fx[:] = np.eye(2 * self.nv)
+            data.Lx[:], data.Lxx[:] = dd.Lx, dd.Lxx
+            return
+        self.differential.calcDiff(dd, x, u)
+        nv, dt, c = self.nv, self.dt, self.position_dt2
+        # x' = x (+) dx, dx = [v dt + c a, a dt]. The state's integration is the identity except for
+        # the floating base: q_b' = q_b exp6(dx_b), so d q_b'/d q_b = Ad(exp6(-dx_b)) and
+        # d q_b'/d dx_b = Jexp6(dx_b) (Crocoddyl's Jintegrate; tests/test_trajopt_integrator.py).
+        base = data.dx[:6]
+        by_base = pin.Jexp6(base)
+        fx, fu = data.Fx, data.Fu
+        position, velocity = fx[:nv], fx[nv:]
+        np.multiply(data.da_dx, c, out=position)  # d(dx_q)/dx = c da/dx + [0, dt I]
+        position[:, nv:] += data.dt_eye
+        position[:6] = by_base @ position[:6]
+        position[:6, :6] += pin.exp6(-base).action
+        position[6:, 6:nv] += data.eye_joints
+        np.multiply(data.da_dx, dt, out=velocity)
+        velocity[:, nv:] += data.eye
+        np.multiply(data.da_du, c, out=fu[:nv])
+        fu[:6] = by_base @ fu[:6]
+        np.multiply(data.da_du, dt, out=fu[nv:])
+        for name, theirs in data.cost_derivatives:
+            np.multiply(theirs, dt, out=getattr(data, name))
+
+    def quasiStatic(self, data, x, maxiter: int = 100, tol: float = 1e-9):
+        return self.differential.quasiStatic(data.differential, x, maxiter, tol)
+
+    def createData(self):
+        """A new data, or with `share_data` the model's one data, allocated at the first call.
+
+        A node's model belongs to one problem at a time (the whole motion, then each receding
+        window in turn), and every problem built on it allocates its data: about 2.5 ms for a
+        contact-dynamics node, 3 s per 14-s walk. Crocoddyl's constructor that takes existing
+        datas cannot be used with a Python model (it rejects their data: `checkData` is not
+        overridable from Python), hence the shared data.
+        """
+        if not self.share_data:
+            return MatchedEulerData(self)
+        if self._data is None:
+            self._data = MatchedEulerData(self)
+        return self._data
+
+
+class MatchedEulerData(crocoddyl.ActionDataAbstract):
+    """The data plus numpy views of the differential data's arrays (taken once: each attribute read
+    through the bindings costs microseconds). Views of this data's own arrays are not kept: a view
+    refers to its owner, and that cycle through a numpy array is never collected (1.7 MB leaked
+    per node data)."""
+
+    def __init__(self, model: MatchedEulerModel):
+        crocoddyl.ActionDataAbstract.__init__(self, model)
+        nv = model.nv
+        self.differential = model.differential.createData()
+        dd = self.differential
+        self.dx = np.zeros(2 * nv)
+        self.a, self.da_dx, self.da_du = dd.xout, dd.Fx, dd.Fu
+        self.cost_derivatives = [(n, getattr(dd, n)) for n in ("Lx", "Lu", "Lxx", "Lxu", "Luu")]
+        self.eye = np.eye(nv)
+        self.eye_joints = np.eye(nv - 6)
+        self.dt_eye = model.dt * self.eye

@@ -1,0 +1,77 @@
+"""200 Hz frames that follow the coarse plan: acceleration tracking on the optimizer's own dynamics.
+
+Each coarse running node k holds the plan's acceleration a_k = (v_{k+1} - v_k) / dt. Its frames are
+5-ms semi-implicit Euler steps of the node's own contact dynamics (the same differential model,
+contacts and Baumgarte terms) with the torque, at each frame, that best produces
+
+    a_des = a_k + Kp (q_ref (-) q) + Kd (v_ref - v)
+
+in the kinetic-energy metric (least squares ||a(u) - a_des||_M: a(u) is affine in u at a given state;
+the map Fu = da/du and M are taken at the node's first frame, which halves the cost and changes the
+frames by 1e-4 rad), where (q_ref, v_ref) are 5-ms Euler steps from the knot with a_k
+held. With the plan integrated by `integrator.MatchedEulerModel`, those reference steps land on the
+next knot, so an exact frame stays on the plan and the PD term only removes what the contact
+constraint and the free-flyer's manifold make differ. `frames.complete` does the rest: torques
+clipped to the limits, wrenches kept in their cones, impulses at their instants, touching-down
+contacts held where the foot is.
+
+Every frame is therefore an exact step of the optimizer's dynamics (inverse-dynamics residual at
+rounding level except the step into a touchdown). Measured on 16 14-s walks up to 1.34 m/s, at the
+knots the frames are within 0.0001 to 0.015 rad and 0.003 to 0.5 rad/s of the plan's joints and 4 mm
+of its base, where a rollout of the solver's feedback law on a semi-implicit Euler plan left it by
+0.06 to 0.14 rad and 1 to 1.9 rad/s, pushed joint speeds past their limits on fast walks, and
+diverged on some (docs/trajopt.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from opt2skill.data.record import FRAME_DT
+from opt2skill.trajopt.frames import ContactCones, Frames, NodePolicy, complete
+from opt2skill.trajopt.phases import Problem
+from opt2skill.trajopt.solver import Solution
+
+
+def track(coarse: Problem, solution: Solution, cones: ContactCones | None, bandwidth: float) -> Frames:
+    """Frames at 5 ms following `solution` on `coarse`'s dynamics (`frames.complete`); `bandwidth`
+    (rad/s) sets the PD: Kp = bandwidth^2, Kd = 2 bandwidth (critically damped)."""
+    state = coarse.shooting.runningModels[0].state
+    nq, nv = state.nq, state.nv
+    kp, kd = bandwidth**2, 2.0 * bandwidth
+    xs, us = solution.xs, solution.us
+
+    def policy_for_node(k: int, fine, fine_data) -> NodePolicy:
+        a_plan = (xs[k + 1][nq:] - xs[k][nq:]) / coarse.nodes[k].dt
+        step = np.concatenate([np.zeros(nv), a_plan * FRAME_DT])  # 5-ms Euler step with a_plan held
+        reference = {"x": xs[k].copy(), "gain": None}
+
+        def policy(i: int, x: np.ndarray) -> np.ndarray:
+            if i > 0:
+                x_ref = reference["x"]
+                step[:nv] = x_ref[nq:] * FRAME_DT + a_plan * FRAME_DT**2
+                reference["x"] = state.integrate(x_ref, step)
+            error = state.diff(x, reference["x"])  # x_ref (-) x
+            a_des = a_plan + kp * error[:nv] + kd * error[nv:]
+            fine.calc(fine_data, x, us[k])
+            if i == 0:  # the torque-to-acceleration map of the node's first frame: feedback needs it roughly
+                fine.calcDiff(fine_data, x, us[k])
+                reference["gain"] = _least_squares_gain(fine_data.differential)
+            return us[k] + reference["gain"] @ (a_des - fine_data.differential.xout)
+
+        return policy
+
+    return complete(coarse, cones, policy_for_node)
+
+
+def _least_squares_gain(dynamics_data) -> np.ndarray:
+    """G with du = G (a_des - a) minimizing ||a + Fu du - a_des||_M (Fu = da/du, M the joint-space
+    inertia, both at the data's state)."""
+    fu = dynamics_data.Fu
+    mass = np.array(dynamics_data.multibody.pinocchio.M)  # Pinocchio fills the upper triangle
+    lower = np.tril_indices_from(mass, -1)
+    mass[lower] = mass.T[lower]
+    weighted = fu.T @ mass
+    hessian = weighted @ fu
+    hessian.flat[:: hessian.shape[0] + 1] += 1e-9 * np.trace(hessian)
+    return np.linalg.solve(hessian, weighted)

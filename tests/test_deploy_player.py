@@ -1,0 +1,119 @@
+"""The standalone player: its own observation code builds what the training environment builds for
+the same states, it imports nothing of the training code, its latency delays the targets, and its
+metrics come out in eval's report."""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+
+import mujoco
+import numpy as np
+import pytest
+from eval_support import CLI, shared_run
+
+from opt2skill.data.reader import Dataset
+from opt2skill.deploy.export import export_policy
+from opt2skill.deploy.observations import ReferenceFrames
+from opt2skill.deploy.player import Player, PlayerConfig
+from opt2skill.envs import ReferenceBank, TrackingEnv, evaluation_config
+from opt2skill.envs.config import TerminationConfig
+from opt2skill.eval.evaluate import load_run_policy
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    run, dataset = shared_run(tmp_path_factory)
+    path, _ = export_policy(run, tmp_path_factory.mktemp("player") / "policy.onnx")
+    return run, dataset, path
+
+
+def test_player_observations_equal_the_training_environments_for_the_same_states(exported):
+    """The environment steps with the policy's actions plus noise (so the histories hold distinct
+    values); at every step the player reads its sensors at the environment's state, keeps its own
+    histories and builds the observation from the metadata. Layouts, frames, histories, reference
+    frames and reset fills must all agree: the vectors are equal to float32 rounding."""
+    run, dataset, path = exported
+    source = load_run_policy(run)
+    reference = Dataset.open(dataset)[1]
+    config = dataclasses.replace(evaluation_config(source.spec.tracking), terminations=TerminationConfig(
+        max_height_error=0, max_orientation_error=0, max_xy_error=0, min_height=0))
+    bank = ReferenceBank.from_trajectories(source.robot, [reference], config.observations.end_effectors, dtype=np.float64)
+    player = Player(path)
+    frames = ReferenceFrames(reference, player.feet)
+    rng = np.random.default_rng(0)
+    action, worst = None, 0.0
+    with TrackingEnv(source.robot, bank, config, 1, seed=0, threads=1) as env:
+        env.reset_worlds(np.array([0]), np.array([0]), np.array([0]))
+        for t in range(reference.num_frames - 1):
+            expected, _ = env.observations()
+            state = env.state
+            player.data.qpos[:], player.data.qvel[:] = state.qpos[0], state.qvel[0]
+            mujoco.mj_forward(player.model, player.data)
+            readings = player.sense()
+            if action is None:
+                player.observation.reset(readings.joint_pos, (reference.qpos[0, 7:] - player.default_pose) / player.scale)
+            else:
+                player.observation.push(readings.joint_pos, action)
+            got = player.observation.observe(readings, frames, t)
+            worst = max(worst, float(np.abs(got - expected[0]).max() / (1 + np.abs(expected[0]).max())))
+            action = np.clip(source.policy(expected)[0] + 0.3 * rng.standard_normal(20), -10, 10)
+            assert not env.step(action[None]).episodes or t == reference.num_frames - 2
+    assert worst < 1e-6, worst
+
+
+def test_the_player_imports_nothing_of_the_training_code(exported):
+    code = ("import sys, opt2skill.deploy.sim_to_sim, opt2skill.deploy.player; "
+            "print(sorted(m for m in sys.modules if m.startswith(('opt2skill.envs', 'opt2skill.rl', 'opt2skill.sim', "
+            "'opt2skill.trajopt', 'torch', 'rsl_rl'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.strip() == "[]"
+
+
+def test_latency_delays_the_targets(exported):
+    run, dataset, path = exported
+    reference = Dataset.open(dataset)[0]
+
+    def first_torque(latency, physics_dt=0.0005):
+        r = Player(path, PlayerConfig(physics_dt=physics_dt, latency=latency)).run(reference)
+        return r.tracked.joint_torque[0]
+
+    now, one_step, two_steps = first_torque(0.0), first_torque(0.005), first_torque(0.010)
+    # With 5 or 10 ms of latency, the first policy step still holds the start pose: the same torques.
+    np.testing.assert_allclose(one_step, two_steps, atol=1e-9)
+    assert np.abs(now - one_step).max() > 1.0
+
+
+def test_the_servos_apply_the_metadatas_pd_law(exported):
+    """u = clip(kp (target - q) - kd qd, +-limit) with the metadata's gains, not the model's own."""
+    _, _, path = exported
+    player = Player(path)
+    rng = np.random.default_rng(1)
+    player.kp, player.kd = player.kp * rng.uniform(0.5, 2.0, 20), player.kd * rng.uniform(0.5, 2.0, 20)
+    player._set_servos()
+    m, d = player.model, player.data
+    d.qpos[:] = player.robot.stand_qpos
+    d.qpos[7:] += rng.normal(0, 0.1, 20)
+    d.qvel[6:] = rng.normal(0, 1.0, 20)
+    d.ctrl[:] = rng.normal(0, 0.3, 20)
+    mujoco.mj_forward(m, d)
+    law = player.kp * (d.ctrl - d.qpos[7:]) - player.kd * d.qvel[6:]
+    np.testing.assert_allclose(d.actuator_force, np.clip(law, -player.limit, player.limit), rtol=1e-9, atol=1e-9)
+
+
+def test_deploy_sim_reports_evals_metrics(exported, tmp_path):
+    run, dataset, path = exported
+    out = tmp_path / "sim2sim"
+    result = subprocess.run([CLI, "deploy-sim", str(path), "--dataset", str(dataset), "--split", "training", "--n", "2",
+                             "--latency", "0.005", "--noise", "0.5", "--out", str(out), "--quiet"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    import json
+
+    report = json.loads((out / "eval.json").read_text())
+    assert report["kind"] == "deploy-sim" and len(report["trajectories"]) == 2
+    assert report["options"]["substeps"] == 10 and report["options"]["latency"] == 0.005
+    assert set(report["summary"]) >= {"E_joint", "E_ee_foot", "E_force", "E_torque"}
+    assert "NOT held out" in report["references"]["note"]
+    assert "E_joint (rad)" in (out / "eval.md").read_text()

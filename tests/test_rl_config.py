@@ -1,0 +1,86 @@
+"""PPO settings in seconds, run identity, checkpoints: the small parts of `opt2skill.rl`."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+import torch
+from envs_support import make_env, recorded_reference
+
+from opt2skill.envs import tracking_config
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.rl import checkpoint
+from opt2skill.rl.config import PPOConfig
+from opt2skill.rl.policy import build_actor
+from opt2skill.rl.run import RunSpec, config_from_dict, open_run, read_spec
+from opt2skill.rl.trainer import Trainer
+
+
+def test_horizons_in_seconds_become_200_hz_discounts():
+    ppo = PPOConfig(discount_horizon=1.0, gae_horizon=0.25, rollout_seconds=0.24)
+    dt = 0.005
+    assert ppo.gamma(dt) == pytest.approx(math.exp(-0.005))
+    assert ppo.gamma(dt) * ppo.lam(dt) == pytest.approx(math.exp(-0.02))
+    assert ppo.steps_per_env(dt) == 48
+    # the same horizons at 50 Hz give the usual 50 Hz values' order of magnitude
+    assert PPOConfig(discount_horizon=2.0, gae_horizon=0.33).gamma(0.02) == pytest.approx(0.99, abs=1e-3)
+    cfg = ppo.rsl_rl(dt)
+    assert cfg["actor"]["hidden_dims"] == [512, 512, 256, 256] == cfg["critic"]["hidden_dims"]
+    assert cfg["actor"]["obs_normalization"] and cfg["critic"]["obs_normalization"]
+    assert cfg["obs_groups"] == {"actor": ["actor"], "critic": ["critic"]}
+    with pytest.raises(ConfigError, match="gae_horizon"):
+        PPOConfig(gae_horizon=2.0, discount_horizon=1.0).check()
+
+
+def test_configs_round_trip_through_json_and_runs_refuse_another_config(tmp_path):
+    config = tracking_config("walk", "pos_t", 5)
+    spec = RunSpec(dataset="/d", dataset_identity={"task": "walk"}, trajectories=3, robot="digit", robot_hash="abc",
+                   tracking=config, ppo=PPOConfig(), num_envs=8, seed=1)
+    assert RunSpec.from_dict(spec.to_dict()) == spec
+    run = tmp_path / "run"
+    assert open_run(run, spec, {"command": "a"}) is False
+    assert open_run(run, spec, {"command": "b"}) is True  # the same: a resume
+    assert read_spec(run) == spec
+    other = dataclasses.replace(spec, tracking=tracking_config("walk", "pos_t", 10), seed=2)
+    with pytest.raises(ConfigError, match=r"different configuration \(seed: 1 -> 2; tracking.observations.history: 5 -> 10\)"):
+        open_run(run, other, {})
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "file").write_text("x")
+    with pytest.raises(ConfigError, match="not a training run"):
+        open_run(tmp_path / "busy", spec, {})
+    with pytest.raises(DataError, match="unknown keys"):
+        config_from_dict(PPOConfig, {"hidden": [1]})
+
+
+def test_checkpoints_are_atomic_keep_the_newest_and_restore_the_trainer(tmp_path):
+    traj, _ = recorded_reference(steps=30)
+    env = make_env([traj], num_envs=4)
+    ppo = PPOConfig(rollout_seconds=0.02, hidden_dims=(32, 32))
+    trainer = Trainer(env, ppo, tmp_path, seed=0)
+    trainer.warm_up_normalizers()
+    for _ in range(5):
+        trainer.train_iteration()
+        trainer.save()
+    (tmp_path / "checkpoints" / "model_00000009.pt.tmp").write_bytes(b"torn")  # an interrupted write
+    names = [p.name for p in checkpoint.list_checkpoints(tmp_path)]
+    assert names == ["model_00000003.pt", "model_00000004.pt", "model_00000005.pt"]
+    data = checkpoint.load(checkpoint.latest(tmp_path))
+    other, third = (Trainer(make_env([traj], num_envs=4, seed=s), ppo, tmp_path, seed=s) for s in (1, 2))
+    other.restore(data)
+    third.restore(data)
+    assert (other.iteration, other.env_steps) == (5, trainer.env_steps)
+    for a, b in zip(other.alg.actor.parameters(), trainer.alg.actor.parameters()):
+        assert torch.equal(a, b)
+    assert other.alg.optimizer.state_dict()["state"][0]["step"] == trainer.alg.optimizer.state_dict()["state"][0]["step"]
+    assert torch.equal(other.alg.actor.obs_normalizer._mean, trainer.alg.actor.obs_normalizer._mean)
+    # the random generators come from the checkpoint: two restores go on identically
+    assert other.env.rng.bit_generator.state == third.env.rng.bit_generator.state
+    assert torch.equal(other.venv.get_observations()["critic"], third.venv.get_observations()["critic"])
+    assert torch.equal(torch.get_rng_state(), data["torch_rng"])
+    actor = build_actor(ppo, env.actor_dim, env.critic_dim, env.nu)  # what play and export rebuild
+    actor.load_state_dict(data["alg"]["actor_state_dict"])
+    (tmp_path / "bad.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(DataError, match="not a readable checkpoint"):
+        checkpoint.load(tmp_path / "bad.pt")

@@ -1,0 +1,150 @@
+"""Training for real: PPO on squats made by `opt2skill generate` improves the tracking, and
+`opt2skill train` resumes after a real kill, logs, checkpoints, plays back and refuses bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from envs_support import shared_dataset
+
+from opt2skill.data.reader import Dataset
+from opt2skill.envs import ReferenceBank, TrackingEnv, evaluation_config, tracking_config
+from opt2skill.envs.evaluation import track
+from opt2skill.model import load_robot
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.rl import checkpoint, session
+from opt2skill.rl.config import PPOConfig
+from opt2skill.rl.run import read_progress, read_run
+from opt2skill.rl.session import TrainRequest
+from opt2skill.rl.trainer import Schedule, Trainer
+
+CLI = [str(Path(sys.executable).parent / "opt2skill")]
+
+
+@pytest.fixture(scope="module")
+def squats(tmp_path_factory) -> Path:
+    return shared_dataset(tmp_path_factory, "squat", 3)
+
+
+def short_training_run(squats: Path, seed: int, iterations: int = 50, starts: int = 5) -> tuple[list, list]:
+    """PPO with the default settings on three squats, terminations tight enough (5 cm of base height,
+    0.3 rad of orientation) that the untrained policy (the default pose) loses most references; the
+    deterministic policy tracked from fixed start frames (0, T/10, ..., 4T/10 of each squat, no
+    noise) before and after `iterations` iterations of 32 worlds x 48 steps."""
+    torch.manual_seed(seed)
+    robot, dataset = load_robot("digit"), Dataset.open(squats)
+    config = tracking_config("squat")
+    config = dataclasses.replace(config, terminations=dataclasses.replace(
+        config.terminations, max_height_error=0.05, max_orientation_error=0.3))
+    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors, use_cache=False)
+    trajectories = np.repeat(np.arange(bank.num_trajectories), starts)  # each from `starts` frames in its first half
+    frames = (bank.length[trajectories] * np.tile(np.arange(starts), bank.num_trajectories)) // (2 * starts)
+    with TrackingEnv(robot, bank, config, 32, seed=seed) as env, \
+            TrackingEnv(robot, bank, evaluation_config(config), len(frames), seed=seed) as evaluation:
+        trainer = Trainer(env, PPOConfig(), seed=seed)
+        trainer.warm_up_normalizers()
+        evaluation.set_progress(1.0)
+
+        def policy(obs):
+            with torch.no_grad():
+                return trainer.alg.actor({"actor": torch.from_numpy(obs)}).numpy()
+
+        before = track(evaluation, policy, trajectories, frames)
+        trainer.train(Schedule(total_steps=iterations * trainer.batch), progress=False)
+        after = track(evaluation, policy, trajectories, frames)
+    return before, after
+
+
+def test_a_short_training_run_raises_episode_reward_and_length(squats):
+    """About a minute of real PPO (real MuJoCo, rsl_rl updates) measurably improves the tracking."""
+    before, after = short_training_run(squats, seed=0)
+    returns = [np.mean([m.reward for m in ms]) for ms in (before, after)]
+    lengths = [np.mean([m.steps for m in ms]) for ms in (before, after)]
+    assert np.mean([m.fell for m in before]) > 0.5  # the untrained policy loses most references
+    assert lengths[1] > 1.1 * lengths[0], lengths
+    assert returns[1] > 1.15 * returns[0], returns
+
+
+def _train(squats: Path, out: Path, *extra: str, **kwargs) -> subprocess.CompletedProcess:
+    args = [*CLI, "train", "--dataset", str(squats), "--out", str(out), "--num-envs", "4", "--quiet", *extra]
+    return subprocess.run(args, capture_output=True, text=True, **kwargs)
+
+
+def test_train_resumes_after_a_kill_and_play_rolls_the_checkpoint_out(squats, tmp_path):
+    run = tmp_path / "run"
+    steps = ["--steps", str(4 * 48 * 8), "--checkpoint-every", "1"]  # 8 iterations of 4 worlds x 48 steps
+    args = [*CLI, "train", "--dataset", str(squats), "--out", str(run), "--num-envs", "4", "--quiet", *steps]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 240
+    while not (run / "checkpoints" / "model_00000003.pt").exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "no checkpoint in time"
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)  # a real kill: no chance to save anything
+    proc.wait()
+    killed_at = checkpoint.load(checkpoint.latest(run))["iteration"]
+    assert 3 <= killed_at < 8
+    done = _train(squats, run, *steps, timeout=600)
+    assert done.returncode == 0, done.stderr
+    final = checkpoint.load(checkpoint.latest(run))
+    assert final["iteration"] == 8 and final["env_steps"] == 8 * 4 * 48
+    # the optimizer went on from its saved state: Adam counted every update of every iteration
+    assert int(final["alg"]["optimizer_state_dict"]["state"][0]["step"]) == 8 * 5 * 4
+    progress = read_progress(run)
+    assert [r["iteration"] for r in progress] == list(range(1, 9))  # nothing logged twice after the kill
+    assert all(f"reward_terms/{t}" in progress[-1] for t in ("joint_pos", "contact_force", "joint_acc"))
+    assert "terminations/unstable_worlds" in progress[-1] and progress[-1]["perf/env_steps_per_s"] > 0
+    record = read_run(run)
+    assert len(record["invocations"]) == 2
+    assert record["identity"]["robot_hash"] == load_robot("digit").hash
+    assert record["invocations"][0]["provenance"]["libraries"]["rsl-rl-lib"] == "5.5.1"
+    assert list((run / "tb").glob("events.out.tfevents.*"))
+    again = _train(squats, run, *steps, timeout=300)  # finished: says so, changes nothing
+    assert again.returncode == 0 and "already trained" in again.stdout
+    shown = subprocess.run([*CLI, "play", str(run), "--n", "2"], capture_output=True, text=True, timeout=300)
+    assert shown.returncode == 0, shown.stderr
+    for text in ("iteration 8", "joint_pos", "contact_force", "E_joint", "frames tracked"):
+        assert text in shown.stdout, text
+
+
+def test_bad_input_gets_one_clear_error_and_writes_nothing(squats, tmp_path):
+    run = tmp_path / "run"
+    foreign = tmp_path / "foreign"  # the same squats, made for another version of the robot file
+    shutil.copytree(squats, foreign, ignore=shutil.ignore_patterns("cache", ".lock"))
+    header = json.loads((foreign / "dataset.json").read_text())
+    header["identity"]["robot_hash"] = "0" * 64
+    (foreign / "dataset.json").write_text(json.dumps(header))
+    cases = [
+        (dict(dataset=tmp_path / "missing"), DataError, "missing"),
+        (dict(history=99), ConfigError, r"--history must be in \[0, 50\]"),
+        (dict(ablation="pos_x"), ConfigError, "--ablation must be one of pos, pos_f, pos_t, pos_f_t"),
+        (dict(num_envs=0), ConfigError, r"--num-envs must be in \[1, 4096\]"),
+        (dict(steps=0), ConfigError, "--steps must be a positive number"),
+        (dict(dataset=foreign), DataError, "different 'digit' robot file"),
+    ]
+    for change, error, message in cases:
+        request = dataclasses.replace(TrainRequest(dataset=squats, out=run, steps=192, num_envs=4), **change)
+        with pytest.raises(error, match=message):
+            session.train(request, progress=False)
+        assert not run.exists()  # nothing written for bad input
+    session.train(TrainRequest(dataset=squats, out=run, steps=192, num_envs=4), progress=False)
+    with pytest.raises(ConfigError, match=r"different configuration \(.*tracking.observations.history: 10 -> 5"):
+        session.train(TrainRequest(dataset=squats, out=run, steps=192, num_envs=4, history=5), progress=False)
+    with pytest.raises(DataError, match="not a training run"):
+        session.play(tmp_path)
+    # the command line: one line on stderr, exit status 2, no traceback
+    for args, message in ((["train", "--dataset", str(squats), "--out", str(tmp_path / "other"), "--ablation", "pos_x"],
+                           "--ablation must be one of"), (["play", str(tmp_path)], "not a training run")):
+        out = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=120)
+        lines = out.stderr.strip().splitlines()
+        assert out.returncode == 2 and len(lines) == 1 and message in lines[0], out.stderr

@@ -1,0 +1,85 @@
+"""The training loop on small real cases: a diverged world is reset, counted in the logs and does not
+stop training; TensorBoard gets every reward term, the episode figures and the throughput; training
+is a function of its seed; a checkpoint of another policy is refused wherever it is loaded."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+from envs_support import exact_config, make_env, recorded_reference
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+from torch.utils.tensorboard import SummaryWriter
+
+from opt2skill.envs import tracking_config
+from opt2skill.envs.config import RewardConfig
+from opt2skill.errors import DataError
+from opt2skill.rl import checkpoint
+from opt2skill.rl.config import PPOConfig
+from opt2skill.rl.policy import load_policy
+from opt2skill.rl.run import RunSpec, open_run, read_progress
+from opt2skill.rl.trainer import Schedule, Trainer
+
+SMALL = PPOConfig(rollout_seconds=0.1, hidden_dims=(32, 32))  # 20 steps per world and iteration
+
+
+@pytest.fixture(scope="module")
+def reference():
+    return recorded_reference(steps=30)[0]
+
+
+def test_a_diverged_world_is_counted_in_the_logs_and_training_goes_on(reference, tmp_path):
+    env = make_env([reference], num_envs=4)
+    trainer = Trainer(env, SMALL, tmp_path, seed=0)
+    trainer.warm_up_normalizers()
+    qpos, qvel = env.state.qpos.copy(), env.state.qvel.copy()
+    qvel[1, 6:] = 1e6  # world 1 explodes at the first step of the first rollout
+    env.sim.reset(np.array([1]), qpos[1:2], qvel[1:2], targets=qpos[1:2, 7:])
+    writer = SummaryWriter(str(tmp_path / "tb"))
+    figures = trainer.train(Schedule(total_steps=2 * trainer.batch), progress=False, writer=writer)
+    writer.close()
+    first, second = read_progress(tmp_path)
+    assert first["terminations/unstable_worlds"] == 1 and first["terminations/unstable"] == 1
+    assert second["terminations/unstable_worlds"] == 0
+    assert trainer.iteration == 2 and all(np.isfinite(v) for v in figures.values())
+    assert all(torch.isfinite(p).all() for p in trainer.alg.actor.parameters())
+    scalars = EventAccumulator(str(tmp_path / "tb")).Reload().Tags()["scalars"]
+    expected = [f"reward_terms/{name}" for name in RewardConfig().terms()] + [
+        "reward/step", "episode/length_s", "episode/reward", "terminations/unstable_worlds",
+        "perf/env_steps_per_s", "perf/learner_samples_per_s", "curriculum/noise_factor", "loss/value"]
+    assert not [tag for tag in expected if tag not in scalars]
+
+
+def test_training_is_a_function_of_its_seed(reference):
+    config = tracking_config("recorded")  # Table II randomization and observation noise on
+
+    def parameters_after_training(seed: int) -> torch.Tensor:
+        with make_env([reference], config, num_envs=4, seed=seed) as env:
+            trainer = Trainer(env, SMALL, None, seed=seed)
+            trainer.warm_up_normalizers()
+            for _ in range(2):
+                trainer.train_iteration()
+            return torch.cat([p.detach().flatten() for p in trainer.alg.actor.parameters()])
+
+    first = parameters_after_training(0)
+    assert torch.equal(first, parameters_after_training(0))
+    assert not torch.equal(first, parameters_after_training(1))
+
+
+def test_a_checkpoint_of_another_policy_is_refused(reference, tmp_path):
+    with make_env([reference], num_envs=2) as env:
+        Trainer(env, SMALL, tmp_path / "a", seed=0).save()
+    saved = checkpoint.latest(tmp_path / "a")
+    config = exact_config()
+    shorter = dataclasses.replace(config, observations=dataclasses.replace(config.observations, history=5))
+    with make_env([reference], shorter, num_envs=2) as env:  # resuming with another history length
+        trainer = Trainer(env, SMALL, tmp_path / "a", seed=0)
+        with pytest.raises(DataError, match=r"checkpoint of another policy: history 10 \(expected 5\)"):
+            trainer.resume_latest()
+    spec = RunSpec(dataset="/d", dataset_identity={}, trajectories=1, robot="digit", robot_hash=env.robot.hash,
+                   tracking=tracking_config("recorded", "pos"), ppo=SMALL, num_envs=2, seed=0)
+    open_run(tmp_path / "b", spec, {})
+    with pytest.raises(DataError, match=r"ablation 'pos_f_t' \(expected 'pos'\)"):
+        load_policy(tmp_path / "b", saved)  # e.g. eval or export given a checkpoint of run a
