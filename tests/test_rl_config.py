@@ -63,9 +63,13 @@ def test_checkpoints_are_atomic_keep_the_newest_and_restore_the_trainer(tmp_path
     for _ in range(5):
         trainer.train_iteration()
         trainer.save()
-    (tmp_path / "checkpoints" / "model_00000009.pt.tmp").write_bytes(b"torn")  # an interrupted write
+    torn = tmp_path / "checkpoints" / "model_00000009.pt.tmp"
+    torn.write_bytes(b"torn")  # an interrupted write (or one in progress)
     names = [p.name for p in checkpoint.list_checkpoints(tmp_path)]
     assert names == ["model_00000003.pt", "model_00000004.pt", "model_00000005.pt"]
+    assert torn.exists()  # a reader (eval while training runs) must not delete a writer's file
+    trainer.save()
+    assert not torn.exists()  # the writer clears what a killed writer left
     data = checkpoint.load(checkpoint.latest(tmp_path))
     other, third = (Trainer(make_env([traj], num_envs=4, seed=s), ppo, tmp_path, seed=s) for s in (1, 2))
     other.restore(data)

@@ -1,4 +1,5 @@
-"""`opt2skill train | play`: train a tracking policy with PPO (resumable), roll a checkpoint out."""
+"""`opt2skill train | play`: train a tracking policy with PPO (resumable; optionally distilled from the
+optimizer's feedback expert first), roll a checkpoint or the expert out."""
 
 from __future__ import annotations
 
@@ -28,30 +29,44 @@ def _terminate_as_interrupt() -> None:
 def train(
     dataset: Path = typer.Option(..., "--dataset", help="Reference dataset directory (opt2skill generate)."),
     out: Path = typer.Option(..., "--out", help="Run directory; rerunning the same command resumes it."),
-    steps: int = typer.Option(10_000_000, help="Environment steps to train for (all worlds together)."),
+    steps: int = typer.Option(10_000_000, help="Environment steps to train for (all worlds together; "
+                              "about 2 M per 30 minutes on 2 cores). Sets the curriculum's pace."),
     num_envs: int = typer.Option(128, "--num-envs", help="Simulated worlds."),
     history: int = typer.Option(10, help="History length N (joint positions and actions, every 4 steps)."),
     ablation: str = typer.Option("pos_f_t", help="Reference force/torque inputs and rewards: pos, pos_f, pos_t, pos_f_t."),
     seed: int = typer.Option(0, help="Seed of everything random (episodes, randomization, noise, networks)."),
     threads: int = typer.Option(None, help="Physics and torch threads (default: every core)."),
     checkpoint_every: int = typer.Option(50, "--checkpoint-every", help="Iterations between checkpoints (also every 5 min)."),
+    init: str = typer.Option("scratch", "--init", help="scratch: PPO from an untrained actor; distill: distil the "
+                             "optimizer's feedback expert into the actor first (dataset made with --keep-gains)."),
+    distill_steps: int = typer.Option(2_000_000, "--distill-steps", help="Environment steps of distillation (--init distill)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Train a tracking policy on a dataset (PPO, rsl_rl); checkpoints, TensorBoard logs, resume."""
+    from opt2skill.errors import ConfigError
     from opt2skill.rl.session import TrainRequest
     from opt2skill.rl.session import train as run
+
+    if init not in ("scratch", "distill"):
+        raise ConfigError(f"--init must be 'scratch' or 'distill', got '{init}'")
 
     request = TrainRequest(dataset=dataset, out=out, steps=steps, num_envs=num_envs, history=history,
                            ablation=ablation, seed=seed, threads=threads, checkpoint_every=checkpoint_every,
                            command=shlex.join(["opt2skill", *sys.argv[1:]]))
     request.check()
     _terminate_as_interrupt()
-    result = run(request, progress=not quiet)
+    if init == "distill":
+        from opt2skill.rl.distill_session import train as run_distilled
+
+        result = run_distilled(request, distill_steps, progress=not quiet)
+    else:
+        result = run(request, progress=not quiet)
     if result.get("already_done"):
         console.print(f"{out}: already trained to {result['env_steps']} environment steps (iteration "
-                      f"{result['iteration']}); raise --steps to train further")
+                      f"{result['iteration']}); raise --steps to train further", soft_wrap=True)
         return
-    rows = [("iterations", str(result["iteration"])), ("environment steps", f"{result['env_steps']:,}"),
+    rows = [("distillation environment steps", f"{result['distill_env_steps']:,}")] if "distill_env_steps" in result else []
+    rows += [("iterations", str(result["iteration"])), ("environment steps", f"{result['env_steps']:,}"),
             ("wall time", f"{result['elapsed'] / 60:.1f} min"),
             ("reward per step (Table I)", f"{result['reward/step']:.3f}")]
     if "episode/length_s" in result:
@@ -65,31 +80,53 @@ def train(
 
 @app.command()
 def play(
-    run: Path = typer.Argument(..., help="Run directory (opt2skill train --out)."),
+    run: Path = typer.Argument(None, help="Run directory (opt2skill train --out); optional with --expert --dataset."),
     n: int = typer.Option(4, "--n", help="References to roll out (the dataset's first N)."),
     randomize: bool = typer.Option(False, "--randomize", help="Keep Table II randomization on."),
     noise: bool = typer.Option(False, "--noise", help="Keep observation noise on."),
     seed: int = typer.Option(0, help="Seed of the rollouts."),
+    expert: bool = typer.Option(False, "--expert", help="Roll out the optimizer's feedback expert instead of the policy."),
+    dataset: Path = typer.Option(None, "--dataset", help="With --expert: the references (default: the run's dataset)."),
 ) -> None:
-    """Roll the newest checkpoint out on a few references (deterministic actions, from frame 0)."""
+    """Roll the newest checkpoint (or the optimizer's feedback expert) out on a few references
+    (deterministic actions, from frame 0)."""
+    from opt2skill.errors import ConfigError
+
+    if expert:
+        from opt2skill.expert.play import play_expert
+        from opt2skill.rl.run import read_spec
+
+        if dataset is None and run is None:
+            raise ConfigError("play --expert needs --dataset DIR or a RUN whose dataset to use")
+        result = play_expert(dataset or Path(read_spec(run).dataset), n=n, randomize=randomize, seed=seed)
+        console.print(f"{dataset or run}: the optimizer's feedback expert (PD targets at 200 Hz)", soft_wrap=True)
+        _print_rollouts(result.motions, result.errors)
+        return
+    if run is None:
+        raise ConfigError("give a RUN directory, or --expert --dataset DIR")
     from opt2skill.rl.session import play as run_play
 
     result = run_play(run, n=n, randomize=randomize, noise=noise, seed=seed)
     console.print(f"{run}: checkpoint of iteration {result.policy.iteration} "
-                  f"({result.policy.env_steps:,} environment steps)")
+                  f"({result.policy.env_steps:,} environment steps)", soft_wrap=True)
+    _print_rollouts(result.motions, result.errors)
+
+
+def _print_rollouts(motions, errors) -> None:
+    """Per reference the frames tracked, the mean reward terms, and the eval.metrics tracking errors."""
     table = figures_table("episodes", [], headers=("reference", "frames tracked / reference"))
-    for m in result.motions:
+    for m in motions:
         table.add_row(f"#{m.position} ({m.cause})", f"{m.steps + 1} / {m.reference_frames}")
     console.print(table)
-    terms = result.motions[0].terms
-    per_step = {k: np.mean([m.terms[k] / m.steps for m in result.motions]) for k in terms}
-    rows = [("reward per step", f"{np.mean([m.reward / m.steps for m in result.motions]):.3f}")]
+    terms = motions[0].terms
+    per_step = {k: np.mean([m.terms[k] / m.steps for m in motions]) for k in terms}
+    rows = [("reward per step", f"{np.mean([m.reward / m.steps for m in motions]):.3f}")]
     rows += [(k, f"{v:.4f}") for k, v in per_step.items()]
     console.print(figures_table("reward terms, mean per step", rows, headers=("term", "value")))
     from opt2skill.eval.metrics import METRICS
 
     rows = []
     for name, (unit, _) in METRICS.items():
-        values = [e[name] for e in result.errors if e[name] is not None and np.isfinite(e[name])]
+        values = [e[name] for e in errors if e[name] is not None and np.isfinite(e[name])]
         rows.append((f"{name} ({unit})", f"{np.mean(values):.3f}" if values else "-"))
     console.print(figures_table("tracking errors (eval.metrics), mean over references", rows, headers=("metric", "value")))

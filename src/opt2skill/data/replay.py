@@ -38,6 +38,9 @@ class ReplaySettings:
     # reference torques leave out (docs/data.md): D qd + f tanh(qd / friction_smoothing).
     joint_losses: bool = True
     friction_smoothing: float = 0.05  # rad/s
+    # Feedback replay: the servos' own PD tracks the reference under the feedback torque (True), or
+    # is cancelled so the feedback torque acts alone (False). docs/data.md has the measurements.
+    feedback_pd: bool = True
 
 
 @dataclass(frozen=True)
@@ -149,8 +152,10 @@ class Replayer:
         """The whole motion under the optimizer's own feedback law, when the record has its gains.
 
         u = tau_ref - K_k (x (-) x_ref) (Crocoddyl's convention, Pinocchio state difference), with
-        x_ref interpolated from the frames and K_k the gains of the solver node containing t,
-        applied as pure torque through the servos. None without `knots["gains"]`.
+        x_ref interpolated from the frames and K_k the gains of the solver node containing t, is the
+        servos' feedforward: they apply u + kp (q_ref - q) + kd (qd_ref - qd) (`feedback_pd`, the
+        default), or u alone (the servo target set at the measured state). None without
+        `knots["gains"]`.
         """
         k = self.traj.knots
         if "gains" not in k or "dt" not in k or "time" not in k:
@@ -178,7 +183,10 @@ class Replayer:
             q = qpos_mj_to_pin(d.qpos)
             dx = np.concatenate([pin.difference(pm, q_ref[i], q), qvel_mj_to_pin(d.qpos, d.qvel) - v_ref[i]])
             u = tau_ref[i] - gains[node[i]] @ dx + self._joint_losses(d.qvel[6:])
-            d.ctrl[:] = d.qpos[7:] + (u + kd * d.qvel[6:]) / kp
+            if self.settings.feedback_pd:
+                d.ctrl[:] = qpos_ref[i, 7:] + (u + kd * v_ref[i, 6:]) / kp
+            else:
+                d.ctrl[:] = d.qpos[7:] + (u + kd * d.qvel[6:]) / kp
             mujoco.mj_step(m, d)
             qpos[i], sensors[i] = d.qpos, d.sensordata
             if i % 50 == 0 and self._fallen(qpos_ref[min(i + 1, nstep - 1)], d.qpos):

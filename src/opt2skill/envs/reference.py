@@ -130,10 +130,10 @@ class ReferenceBank:
         """MuJoCo qpos (k, nq) and qvel (k, nv), float64, of reference rows (base linear velocity to
         the world frame, quaternion normalized)."""
         k = self.kin[rows].astype(np.float64)
-        c = self.kin_cols
-        quat = k[:, c["base_quat"]]
+        cols = self.kin_cols
+        quat = k[:, cols["base_quat"]]
         quat /= np.linalg.norm(quat, axis=1, keepdims=True)
-        lin_world = np.einsum("kij,kj->ki", quat_to_mat(quat), k[:, c["base_lin_vel"]])
-        qpos = np.concatenate([k[:, c["base_pos"]], quat, k[:, c["joint_pos"]]], axis=1)
-        qvel = np.concatenate([lin_world, k[:, c["base_ang_vel"]], k[:, c["joint_vel"]]], axis=1)
+        lin_world = np.einsum("kij,kj->ki", quat_to_mat(quat), k[:, cols["base_lin_vel"]])
+        qpos = np.concatenate([k[:, cols["base_pos"]], quat, k[:, cols["joint_pos"]]], axis=1)
+        qvel = np.concatenate([lin_world, k[:, cols["base_ang_vel"]], k[:, cols["joint_vel"]]], axis=1)
         return qpos, qvel

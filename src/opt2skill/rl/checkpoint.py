@@ -31,6 +31,7 @@ def checkpoint_dir(run: Path) -> Path:
 def save(run: Path, iteration: int, payload: dict[str, Any]) -> Path:
     directory = checkpoint_dir(run)
     directory.mkdir(parents=True, exist_ok=True)
+    remove_temporaries(directory)  # left by a writer killed mid-write (only the writer may remove them)
     path = directory / f"model_{iteration:08d}.pt"
     with atomic_path(path) as tmp:
         torch.save({"format": FORMAT, "format_version": FORMAT_VERSION, "iteration": iteration, **payload}, tmp)
@@ -40,11 +41,11 @@ def save(run: Path, iteration: int, payload: dict[str, Any]) -> Path:
 
 
 def list_checkpoints(run: Path) -> list[Path]:
-    """Checkpoint files of a run, oldest first (interrupted writes removed)."""
+    """Checkpoint files of a run, oldest first (a write in progress or interrupted is not listed, and
+    not removed: a reader must not delete a running trainer's temporary file)."""
     directory = checkpoint_dir(run)
     if not directory.is_dir():
         return []
-    remove_temporaries(directory)
     return sorted(p for p in directory.iterdir() if _NAME.match(p.name))
 
 

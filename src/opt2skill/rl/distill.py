@@ -29,12 +29,12 @@ import torch
 from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
-from opt2skill.data.atomic import dumps
 from opt2skill.envs import TrackingEnv
 from opt2skill.expert.acting import EnvExpert
 from opt2skill.rl import checkpoint
 from opt2skill.rl.distill_config import DistillConfig
-from opt2skill.rl.run import PROGRESS_FILE, trim_progress
+from opt2skill.rl.run import trim_progress
+from opt2skill.rl.trainer import log_iteration
 from opt2skill.rl.vec_env import EpisodeStats
 
 
@@ -198,13 +198,7 @@ class Distiller:
         return figures
 
     def _log(self, figures: dict[str, float], writer) -> None:
-        if writer is not None:
-            for key, value in figures.items():
-                writer.add_scalar(key, value, self.iteration)
-        if self.run is not None:
-            record = {"iteration": self.iteration, "env_steps": self.env_steps, "elapsed": self.elapsed, **figures}
-            with open(self.run / PROGRESS_FILE, "a") as f:
-                f.write(dumps(record) + "\n")
+        log_iteration(self.run, writer, self.iteration, self.env_steps, self.elapsed, figures)
 
     # ------------------------------------------------------------ checkpoints
 

@@ -205,14 +205,21 @@ class Trainer:
         return figures
 
     def _log(self, figures: dict[str, float], writer) -> None:
-        if writer is not None:
-            for key, value in figures.items():
-                writer.add_scalar(key, value, self.iteration)
-            writer.add_scalar("perf/env_steps_total", self.env_steps, self.iteration)
-        if self.run is not None:
-            record = {"iteration": self.iteration, "env_steps": self.env_steps, "elapsed": self.elapsed, **figures}
-            with open(self.run / PROGRESS_FILE, "a") as f:
-                f.write(dumps(record) + "\n")
+        log_iteration(self.run, writer, self.iteration, self.env_steps, self.elapsed,
+                      {**figures, "perf/env_steps_total": self.env_steps})
+
+
+def log_iteration(run: Path | None, writer, iteration: int, env_steps: int, elapsed: float,
+                  figures: dict[str, float]) -> None:
+    """One iteration's figures: TensorBoard scalars at step `iteration` (if a writer is given) and a
+    line of RUN/progress.jsonl (if a run directory is given)."""
+    if writer is not None:
+        for key, value in figures.items():
+            writer.add_scalar(key, value, iteration)
+    if run is not None:
+        record = {"iteration": iteration, "env_steps": env_steps, "elapsed": elapsed, **figures}
+        with open(Path(run) / PROGRESS_FILE, "a") as f:
+            f.write(dumps(record) + "\n")
 
 
 def _bar(enabled: bool, total: int, done: int):
