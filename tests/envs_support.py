@@ -48,16 +48,19 @@ def session_root(tmp_path_factory) -> Path:
     return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
 
 
-def shared_dataset(tmp_path_factory, task: str, n: int) -> Path:
-    """A dataset made by `opt2skill generate TASK --n N`, once for all test workers (a file lock
-    in the session's shared temporary directory; generation resumes, so a second call is a no-op)."""
+def shared_dataset(tmp_path_factory, task: str, n: int, keep_gains: bool = False) -> Path:
+    """A dataset made by `opt2skill generate TASK --n N [--keep-gains]`, once for all test workers (a
+    file lock in the session's shared temporary directory; generation resumes, so a second call is a
+    no-op)."""
     root = session_root(tmp_path_factory)
-    out = root / f"{task}{n}"
-    with open(root / f"{task}{n}.lock", "w") as lock:
+    name = f"{task}{n}" + ("g" if keep_gains else "")
+    out = root / name
+    with open(root / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         done = out / "trajectories"
         if not (done.is_dir() and len(list(done.glob("*.h5"))) >= n):
             cli = str(Path(sys.executable).parent / "opt2skill")
-            subprocess.run([cli, "generate", task, "--n", str(n), "--workers", "1", "--out", str(out), "--quiet"],
+            gains = ["--keep-gains"] if keep_gains else []
+            subprocess.run([cli, "generate", task, "--n", str(n), "--workers", "1", "--out", str(out), "--quiet", *gains],
                            check=True, capture_output=True, env={**os.environ, "OMP_NUM_THREADS": "1"}, timeout=600)
     return out

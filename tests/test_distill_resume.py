@@ -8,7 +8,10 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
+import torch
+from envs_support import shared_dataset
 
 from opt2skill.errors import DataError
 from opt2skill.expert.play import play_expert
@@ -33,16 +36,9 @@ print("RESULT " + json.dumps({"resumed_from": result["resumed_from"], "iteration
 """
 
 
-def generate(out: Path, *extra: str) -> Path:
-    cli = str(Path(sys.executable).parent / "opt2skill")
-    subprocess.run([cli, "generate", "squat", "--n", "2", "--workers", "1", "--out", str(out), "--quiet", *extra],
-                   check=True, capture_output=True, env=ENV, timeout=600)
-    return out
-
-
 @pytest.fixture(scope="module")
 def squats_with_gains(tmp_path_factory) -> Path:
-    return generate(tmp_path_factory.mktemp("data") / "squat2g", "--keep-gains")
+    return shared_dataset(tmp_path_factory, "squat", 3, keep_gains=True)
 
 
 def start(dataset: Path, run: Path) -> subprocess.Popen:
@@ -100,8 +96,8 @@ def test_each_stage_resumes_after_a_kill(squats_with_gains, tmp_path):
     assert ppo[2]["policy/action_std"] != pytest.approx(0.1, abs=1e-7)
 
 
-def test_a_dataset_without_gains_gets_a_clear_error(tmp_path):
-    bare = generate(tmp_path / "squat_bare")
+def test_a_dataset_without_gains_gets_a_clear_error(tmp_path_factory, tmp_path):
+    bare = shared_dataset(tmp_path_factory, "squat", 3)
     request = TrainRequest(dataset=bare, out=tmp_path / "run", steps=100, num_envs=2, threads=1)
     with pytest.raises(DataError, match="no feedback gains.*--keep-gains"):
         train(request, distill_steps=100, progress=False)
@@ -119,3 +115,25 @@ def test_the_expert_plays_on_its_own(squats_with_gains):
                             str(squats_with_gains), "--n", "1"], capture_output=True, text=True, env=ENV, timeout=300)
     assert shown.returncode == 0, shown.stderr
     assert "feedback" in shown.stdout and "321 / 321" in shown.stdout and "E_joint" in shown.stdout
+
+    # The distilled actor itself (the stage's last checkpoint) is evaluated like any of the run's
+    # checkpoints: the same weights, named as the distillation's; a file outside the run is refused.
+    from opt2skill.eval.evaluate import load_run_policy
+    from opt2skill.rl.policy import Policy, build_actor
+    from opt2skill.rl.run import read_spec
+
+    stage_last = checkpoint.latest(run / "distill")
+    distilled_policy = load_run_policy(run, stage_last)
+    assert distilled_policy.info["name"] == "run (distillation iteration 8)"
+    data = checkpoint.load(stage_last)
+    spec = read_spec(run)
+    actor = build_actor(spec.ppo, data["dims"]["actor"], data["dims"]["critic"], data["dims"]["actions"])
+    actor.load_state_dict(data["actor_state_dict"])
+    obs = torch.randn(5, data["dims"]["actor"], generator=torch.Generator().manual_seed(0)).numpy()
+    np.testing.assert_allclose(distilled_policy.policy(obs), Policy(actor)(obs), atol=1e-6)
+    last_ppo = load_run_policy(run).policy(obs)
+    assert np.abs(last_ppo - distilled_policy.policy(obs)).max() > 1e-4  # PPO moved the actor: not the same file
+    stray = tmp_path / "model_00000008.pt"
+    stray.write_bytes(stage_last.read_bytes())
+    with pytest.raises(DataError, match="is not one of run"):
+        load_run_policy(run, stray)

@@ -33,6 +33,9 @@ def demo(
     n_train: int = typer.Option(3, "--n-train", help="Training references."),
     n_test: int = typer.Option(2, "--n-test", help="Held-out references (another seed)."),
     train_steps: int = typer.Option(30_000, "--train-steps", help="PPO environment steps."),
+    init: str = typer.Option("distill", "--init", help="distill: distil the optimizer's feedback expert, then PPO; "
+                             "scratch: PPO alone."),
+    distill_steps: int = typer.Option(60_000, "--distill-steps", help="Environment steps of distillation."),
     num_envs: int = typer.Option(32, "--num-envs", help="Simulated worlds while training."),
     workers: int = typer.Option(0, min=0, help="Generation processes (0: every core)."),
     fps: int = typer.Option(20, min=1, max=60, help="Frames per second of the video."),
@@ -41,7 +44,8 @@ def demo(
     from opt2skill.cli.demo import DemoSettings, run_demo
 
     run_demo(DemoSettings(out=out, robot=robot_name, task=task, n_train=n_train, n_test=n_test,
-                          train_steps=train_steps, num_envs=num_envs, workers=workers, fps=fps))
+                          train_steps=train_steps, init=init, distill_steps=distill_steps, num_envs=num_envs,
+                          workers=workers, fps=fps))
 
 
 def main() -> None:

@@ -1,13 +1,15 @@
 """`opt2skill demo` (`make demo`): the whole pipeline at a small, fast setting, for real.
 
 1. generate a few walking references for training and a few more, with another seed, held out;
-2. train a tracking policy briefly (PPO, the same trainer as `opt2skill train`);
+2. train a tracking policy briefly: distil the optimizer's feedback expert into the actor, then PPO
+   (`opt2skill train --init distill`; docs/distill.md has the benchmark that chose it over plain
+   PPO), or plain PPO with `--init scratch`;
 3. evaluate it on the held-out references (Tables III and IV, with the paper's row beside it);
 4. export it to ONNX and play it in the standalone 2 kHz player (the sim-to-sim gap as numbers);
 5. render one rollout with its reference as a ghost;
 then print where each output is. Every step resumes: rerunning the command skips the references and
 training already done. The settings are the demo's, not the paper's: a few references and minutes
-of training make a policy that does not walk yet (the README gives the full-scale commands).
+of training are not the paper's hours (the README gives the full-scale commands).
 """
 
 from __future__ import annotations
@@ -32,7 +34,9 @@ class DemoSettings:
     task: str = "walk"
     n_train: int = 3
     n_test: int = 2
-    train_steps: int = 30_000  # environment steps, all worlds together (20 PPO iterations of 32 worlds)
+    train_steps: int = 30_000  # PPO environment steps, all worlds together (20 iterations of 32 worlds)
+    init: str = "distill"  # distill: the feedback expert distilled first (references keep their gains); scratch
+    distill_steps: int = 60_000  # environment steps of distillation (init "distill")
     num_envs: int = 32
     workers: int = 0  # generation processes (0: every core)
     fps: int = 20
@@ -42,8 +46,10 @@ class DemoSettings:
     def check(self) -> None:
         if self.n_train < 1 or self.n_test < 1:
             raise ConfigError(f"--n-train and --n-test must be >= 1, got {self.n_train} and {self.n_test}")
-        if self.train_steps < 1 or self.num_envs < 1:
-            raise ConfigError("--train-steps and --num-envs must be >= 1")
+        if self.train_steps < 1 or self.num_envs < 1 or self.distill_steps < 1:
+            raise ConfigError("--train-steps, --distill-steps and --num-envs must be >= 1")
+        if self.init not in ("distill", "scratch"):
+            raise ConfigError(f"--init must be 'distill' or 'scratch', got '{self.init}'")
 
 
 def run_demo(s: DemoSettings) -> dict[str, Path]:
@@ -55,7 +61,7 @@ def run_demo(s: DemoSettings) -> dict[str, Path]:
     from opt2skill.eval.evaluate import EvalRequest, evaluate
     from opt2skill.eval.plots import plot_tracking
     from opt2skill.eval.render import render_video
-    from opt2skill.rl.session import TrainRequest, train
+    from opt2skill.rl import distill_session, session
     from opt2skill.trajopt.generate import GenerateRequest, generate
 
     out = Path(s.out)
@@ -71,12 +77,19 @@ def run_demo(s: DemoSettings) -> dict[str, Path]:
     stage("1. references (trajectory optimization)")
     for directory, n, seed in ((train_dir, s.n_train, s.seed), (test_dir, s.n_test, s.seed + 1)):
         summary = generate(GenerateRequest(task=s.task, n=n, seed=seed, out=directory, robot=s.robot, workers=s.workers,
-                                           ranges=ranges, command="opt2skill demo"))
+                                           ranges=ranges, keep_gains=s.init == "distill", command="opt2skill demo"))
         console.print(f"{directory}: {summary['counts']['accepted']} of {n} accepted")
-    stage("2. training (PPO)")
-    result = train(TrainRequest(dataset=train_dir, out=run, steps=s.train_steps, num_envs=s.num_envs, seed=s.seed,
-                                command="opt2skill demo"))
-    console.print(f"{run}: iteration {result['iteration']}, {result['env_steps']:,} environment steps")
+    request = session.TrainRequest(dataset=train_dir, out=run, steps=s.train_steps, num_envs=s.num_envs, seed=s.seed,
+                                   command="opt2skill demo")
+    if s.init == "distill":
+        stage("2. training (distillation of the optimizer's feedback expert, then PPO)")
+        result = distill_session.train(request, s.distill_steps)
+        console.print(f"{run}: {result.get('distill_env_steps', 0):,} environment steps of distillation, then "
+                      f"PPO iteration {result['iteration']}, {result['env_steps']:,} environment steps")
+    else:
+        stage("2. training (PPO)")
+        result = session.train(request)
+        console.print(f"{run}: iteration {result['iteration']}, {result['env_steps']:,} environment steps")
 
     stage("3. evaluation on held-out references")
     request = EvalRequest(run=run, dataset=test_dir, n=s.n_test)

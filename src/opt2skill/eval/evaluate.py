@@ -76,17 +76,19 @@ def load_run_policy(run: Path, checkpoint: Path | None = None) -> RunPolicy:
     path = Path(checkpoint) if checkpoint else checkpoints.latest(run)
     if path is None:
         raise DataError(f"run {run} has no checkpoint yet")
-    if path.resolve().parent != checkpoints.checkpoint_dir(run).resolve():
+    ppo_dir, distill_dir = checkpoints.policy_checkpoint_dirs(run)
+    if path.resolve().parent not in (ppo_dir.resolve(), distill_dir.resolve()):
         # A checkpoint carries no task or robot: only its own run says what it was trained for.
-        raise DataError(f"checkpoint {path} is not one of run {run}'s ({checkpoints.checkpoint_dir(run)}); "
-                        "evaluate the run it belongs to")
+        raise DataError(f"checkpoint {path} is not one of run {run}'s ({ppo_dir}, or {distill_dir} for the "
+                        "distillation stage); evaluate the run it belongs to")
     policy, _ = load_policy(run, path)
     expected = layout(spec.tracking.observations, robot.nu, len(robot.config.feet)).actor_dim
     if policy.obs_dim != expected:
         raise DataError(f"checkpoint {path} takes {policy.obs_dim} observations; run {run}'s task gives {expected} "
                         "(a checkpoint of another run or configuration)")
     t = spec.tracking
-    name = f"{run.name} (iteration {policy.iteration})"
+    stage = "distillation " if path.resolve().parent == distill_dir.resolve() else ""
+    name = f"{run.name} ({stage}iteration {policy.iteration})"
     info = {
         "name": name, "run": str(run.resolve()), "checkpoint": str(path.resolve()), "iteration": policy.iteration,
         "env_steps": policy.env_steps, "robot": spec.robot, "robot_hash": spec.robot_hash, "task": t.task, "ablation": t.ablation, "history": t.observations.history,

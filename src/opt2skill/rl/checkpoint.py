@@ -24,8 +24,16 @@ KEEP = 3  # newest checkpoints kept
 _NAME = re.compile(r"^model_(\d{8})\.pt$")
 
 
+DISTILL_STAGE_DIR = "distill"  # RUN/distill: the distillation stage of `train --init distill`
+
+
 def checkpoint_dir(run: Path) -> Path:
     return Path(run) / "checkpoints"
+
+
+def policy_checkpoint_dirs(run: Path) -> tuple[Path, Path]:
+    """Where a run's actors are: its PPO checkpoints, and its distillation stage's (if any)."""
+    return checkpoint_dir(run), checkpoint_dir(Path(run) / DISTILL_STAGE_DIR)
 
 
 def save(run: Path, iteration: int, payload: dict[str, Any]) -> Path:

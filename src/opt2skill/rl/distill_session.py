@@ -42,7 +42,7 @@ from opt2skill.rl.run import RunSpec, differences, open_run, trim_progress
 from opt2skill.rl.session import TrainRequest, open_dataset, set_threads
 from opt2skill.rl.trainer import Schedule, Trainer
 
-STAGE_DIR = "distill"
+STAGE_DIR = checkpoint.DISTILL_STAGE_DIR
 STAGE_FILE = "stage.json"
 
 

@@ -55,5 +55,6 @@ def load_policy(run: Path, path: Path | None = None) -> tuple[Policy, RunSpec]:
         spec.robot, spec.robot_hash, spec.tracking.task, spec.tracking.ablation, obs.history, obs.stride))
     dims = data["dims"]
     actor = build_actor(spec.ppo, dims["actor"], dims["critic"], dims["actions"])
-    actor.load_state_dict(data["alg"]["actor_state_dict"])
+    # A PPO checkpoint holds rsl_rl's state; a distillation stage's holds the actor alone.
+    actor.load_state_dict(data["alg"]["actor_state_dict"] if "alg" in data else data["actor_state_dict"])
     return Policy(actor, data["iteration"], data["env_steps"]), spec
