@@ -95,27 +95,6 @@ def test_each_stage_resumes_after_a_kill(squats_with_gains, tmp_path):
     assert ppo[0]["policy/action_std"] == pytest.approx(0.1) and ppo[1]["policy/action_std"] == pytest.approx(0.1)
     assert ppo[2]["policy/action_std"] != pytest.approx(0.1, abs=1e-7)
 
-
-def test_a_dataset_without_gains_gets_a_clear_error(tmp_path_factory, tmp_path):
-    bare = shared_dataset(tmp_path_factory, "squat", 3)
-    request = TrainRequest(dataset=bare, out=tmp_path / "run", steps=100, num_envs=2, threads=1)
-    with pytest.raises(DataError, match="no feedback gains.*--keep-gains"):
-        train(request, distill_steps=100, progress=False)
-    shown = subprocess.run([str(Path(sys.executable).parent / "opt2skill"), "train", "--init", "distill", "--dataset",
-                            str(bare), "--out", str(tmp_path / "run2"), "--quiet"], capture_output=True, text=True,
-                           env=ENV, timeout=300)
-    assert shown.returncode == 2 and len(shown.stderr.strip().splitlines()) == 1 and "--keep-gains" in shown.stderr
-
-
-def test_the_expert_plays_on_its_own(squats_with_gains):
-    result = play_expert(squats_with_gains, n=2, threads=1)
-    assert [m.fell for m in result.motions] == [False, False]
-    assert max(e["E_joint"] for e in result.errors) < 0.01  # measured 0.002 rad on squats
-    shown = subprocess.run([str(Path(sys.executable).parent / "opt2skill"), "play", "--expert", "--dataset",
-                            str(squats_with_gains), "--n", "1"], capture_output=True, text=True, env=ENV, timeout=300)
-    assert shown.returncode == 0, shown.stderr
-    assert "feedback" in shown.stdout and "321 / 321" in shown.stdout and "E_joint" in shown.stdout
-
     # The distilled actor itself (the stage's last checkpoint) is evaluated like any of the run's
     # checkpoints: the same weights, named as the distillation's; a file outside the run is refused.
     from opt2skill.eval.evaluate import load_run_policy
@@ -137,3 +116,25 @@ def test_the_expert_plays_on_its_own(squats_with_gains):
     stray.write_bytes(stage_last.read_bytes())
     with pytest.raises(DataError, match="is not one of run"):
         load_run_policy(run, stray)
+
+
+def test_a_dataset_without_gains_gets_a_clear_error(tmp_path_factory, tmp_path):
+    bare = shared_dataset(tmp_path_factory, "squat", 3)
+    request = TrainRequest(dataset=bare, out=tmp_path / "run", steps=100, num_envs=2, threads=1)
+    with pytest.raises(DataError, match="no feedback gains.*--keep-gains"):
+        train(request, distill_steps=100, progress=False)
+    shown = subprocess.run([str(Path(sys.executable).parent / "opt2skill"), "train", "--init", "distill", "--dataset",
+                            str(bare), "--out", str(tmp_path / "run2"), "--quiet"], capture_output=True, text=True,
+                           env=ENV, timeout=300)
+    assert shown.returncode == 2 and len(shown.stderr.strip().splitlines()) == 1 and "--keep-gains" in shown.stderr
+
+
+def test_the_expert_plays_on_its_own(squats_with_gains):
+    result = play_expert(squats_with_gains, n=2, threads=1)
+    assert [m.fell for m in result.motions] == [False, False]
+    assert max(e["E_joint"] for e in result.errors) < 0.01  # measured 0.002 rad on squats
+    shown = subprocess.run([str(Path(sys.executable).parent / "opt2skill"), "play", "--expert", "--dataset",
+                            str(squats_with_gains), "--n", "1"], capture_output=True, text=True, env=ENV, timeout=300)
+    assert shown.returncode == 0, shown.stderr
+    assert "feedback" in shown.stdout and "321 / 321" in shown.stdout and "E_joint" in shown.stdout
+
