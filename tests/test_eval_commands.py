@@ -78,9 +78,12 @@ def test_compare_two_runs_on_the_same_references(run_and_data, tmp_path):
 def test_sweep_on_a_tiny_grid(run_and_data, tmp_path):
     run, data = run_and_data
     out = tmp_path / "sweep"
-    result = _cli("sweep", run, "--terrain", "stairs", "--values", "0,0.1", "--trials", "2", "--out", out, "--quiet")
+    first = run / "checkpoints" / "model_00000001.pt"  # an earlier checkpoint than the newest
+    result = _cli("sweep", run, "--terrain", "stairs", "--values", "0,0.1", "--trials", "2", "--out", out, "--quiet",
+                  "--checkpoint", first)
     assert result.returncode == 0, result.stderr
     sweep = json.loads((out / "sweep.json").read_text())
+    assert sweep["policy"]["iteration"] == 1
     assert list(sweep["success_rate"]) == ["0 cm", "10 cm"]
     trials = sweep["trials"]["10 cm"]
     assert len(trials) == 2 and all(abs(t["yaw"]) <= np.radians(25) for t in trials)
@@ -95,9 +98,10 @@ def test_sweep_on_a_tiny_grid(run_and_data, tmp_path):
 
 def test_render_a_runs_rollout_with_the_reference_ghost(run_and_data, tmp_path):
     run, data = run_and_data
-    result = _cli("render", run, "--index", "1", "--fps", "10", "--out", tmp_path / "r.mp4")
+    result = _cli("render", run, "--index", "1", "--fps", "10", "--out", tmp_path / "r.mp4",
+                  "--checkpoint", run / "checkpoints" / "model_00000001.pt")
     assert result.returncode == 0, result.stderr
-    assert "ghost: the reference" in result.stdout
+    assert "ghost: the reference" in result.stdout and "iteration 1)" in " ".join(result.stdout.split())
     frames = [f for f in imageio.get_reader(tmp_path / "r.mp4")]  # (list() asks the reader for an infinite length)
     assert len(frames) >= 3 and all(np.asarray(f).std() > 5 for f in frames)
 

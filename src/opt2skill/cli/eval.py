@@ -22,6 +22,8 @@ RANDOMIZE = typer.Option(False, "--randomize", help="Table II randomization on."
 NOISE = typer.Option(False, "--noise", help="Table II observation noise on.")
 THREADS = typer.Option(None, help="Physics and torch threads (default: every core).")
 QUIET = typer.Option(False, "--quiet", help="No progress bar.")
+CHECKPOINT = typer.Option(None, help="A checkpoint file of the run (default: the newest); RUN/distill/checkpoints/ "
+                          "holds the distilled actor of an --init distill run.")
 
 
 def _indices(text: str | None) -> tuple[int, ...]:
@@ -71,7 +73,7 @@ def eval_command(
     randomize: bool = RANDOMIZE,
     noise: bool = NOISE,
     seed: int = typer.Option(0, help="Seed of the rollouts (randomization, noise)."),
-    checkpoint: Path = typer.Option(None, help="A checkpoint file of the run (default: the newest)."),
+    checkpoint: Path = CHECKPOINT,
     plots: int = typer.Option(3, help="Reference-against-tracked pages (PNG) for the first K references."),
     out: Path = typer.Option(None, help="Output directory (default: RUN/eval/<dataset>-<split>...)."),
     threads: int = THREADS,
@@ -105,7 +107,7 @@ def eval_command(
 def export(
     run: Path = typer.Argument(..., help="Run directory (opt2skill train --out)."),
     out: Path = typer.Option(..., "--out", help="ONNX file to write (e.g. policy.onnx)."),
-    checkpoint: Path = typer.Option(None, help="A checkpoint file of the run (default: the newest)."),
+    checkpoint: Path = CHECKPOINT,
 ) -> None:
     """Write the actor as ONNX (normalization folded in) with the metadata a robot-side program needs."""
     if out.suffix != ".onnx":  # before the slow imports
@@ -196,6 +198,7 @@ def sweep(
     tolerance: float = typer.Option(0.1, help="Share of the reference distance the robot may fall short by."),
     seed: int = typer.Option(0, help="Seed of the yaws."),
     video: bool = typer.Option(False, "--video", help="Also render the first trial of the hardest setting."),
+    checkpoint: Path = CHECKPOINT,
     out: Path = typer.Option(None, help="Output directory (default: RUN/eval/sweep-<terrain>)."),
     threads: int = THREADS,
     quiet: bool = QUIET,
@@ -221,7 +224,7 @@ def sweep(
     from opt2skill.eval.plots import plot_success
     from opt2skill.eval.references import check_metric_fields
 
-    source = load_run_policy(run)
+    source = load_run_policy(run, checkpoint)
     ds = Dataset.open(dataset or source.spec.dataset)
     check_metric_fields(ds, source.spec.tracking.task)
     position = choose_reference(ds, training_fingerprints(source.spec), index)

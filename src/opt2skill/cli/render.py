@@ -24,6 +24,8 @@ def render(
     robot: str = typer.Option(None, help="Robot name or robot.yaml (default: the one the data names)."),
     dataset: Path = typer.Option(None, "--dataset", help="For a run: where the reference comes from (default: the "
                                                          "run's training dataset)."),
+    checkpoint: Path = typer.Option(None, help="For a run: a checkpoint file of it (default: the newest; "
+                                               "RUN/distill/checkpoints/ holds the distilled actor)."),
 ) -> None:
     """Render a reference trajectory, or a policy's rollout beside its reference, to MP4 (EGL)."""
     from opt2skill.data.reader import Dataset
@@ -31,7 +33,7 @@ def render(
     from opt2skill.model import load_robot
 
     if (source / "run.json").is_file():
-        _render_run(source, index, out, fps, dataset)
+        _render_run(source, index, out, fps, dataset, checkpoint)
         return
     if not (source / "dataset.json").is_file():
         raise ConfigError(f"{source} is not a dataset directory (no dataset.json) nor a run directory (no run.json)")
@@ -45,11 +47,12 @@ def render(
     console.print(f"wrote {path} ({traj.duration:.1f} s of motion)")
 
 
-def _render_run(run: Path, index: int | None, out: Path | None, fps: int, dataset: Path | None) -> None:
+def _render_run(run: Path, index: int | None, out: Path | None, fps: int, dataset: Path | None,
+                checkpoint: Path | None = None) -> None:
     from opt2skill.eval.evaluate import EvalRequest, evaluate, load_run_policy
     from opt2skill.eval.render import render_video
 
-    policy = load_run_policy(run)
+    policy = load_run_policy(run, checkpoint)
     requests = [EvalRequest(run=run, dataset=dataset, n=1, indices=(index,))] if index is not None else [
         EvalRequest(run=run, dataset=dataset, n=1), EvalRequest(run=run, dataset=dataset, n=1, split="all")]
     for i, request in enumerate(requests):
