@@ -8,6 +8,8 @@ import json
 import shutil
 import subprocess
 
+import pytest
+
 from envs_support import shared_dataset
 from eval_support import CLI
 
@@ -34,3 +36,14 @@ def test_demo_runs_the_whole_pipeline(tmp_path_factory, tmp_path):
     printed = " ".join(result.stdout.split())
     for what in ("distillation", "evaluation table:", "ONNX policy:", "video:", "sim-to-sim table:", "time per stage"):
         assert what in printed, what
+
+
+def test_bad_demo_settings_name_the_option_and_write_nothing(tmp_path):
+    from opt2skill.cli.demo import DemoSettings, run_demo
+    from opt2skill.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="--init must be 'distill' or 'scratch', got 'foo'"):
+        run_demo(DemoSettings(out=tmp_path / "d", init="foo"))
+    with pytest.raises(ConfigError, match="--distill-steps"):
+        run_demo(DemoSettings(out=tmp_path / "d", distill_steps=0))
+    assert not (tmp_path / "d").exists()
