@@ -2,8 +2,9 @@
 
 Each pipeline trains for a fixed wall-clock budget on the training dataset; every `--eval-minutes`
 of training the clock stops and the current actor (deterministic actions) tracks the held-out
-references from frame 0 with randomization and noise off (`eval.rollout`, the metrics of
-`eval.metrics.tracking_errors`). Recorded against training wall-clock time:
+references from frame 0 with randomization and noise off, as `opt2skill eval` does (`eval.rollout`
+with `eval.evaluate.eval_config`: drifting away does not end the episode, falling does; the metrics
+of `eval.metrics.tracking_errors`). Recorded against training wall-clock time:
 
 - success rate (the reference tracked to its end without a termination), and the share of the
   references' frames tracked before any termination,
@@ -39,14 +40,15 @@ from sim_ceiling import machine
 
 from opt2skill.data.atomic import dumps
 from opt2skill.data.reader import Dataset
-from opt2skill.envs import ReferenceBank, TrackingEnv, evaluation_config, tracking_config
+from opt2skill.envs import ReferenceBank, TrackingEnv, tracking_config
+from opt2skill.eval.evaluate import eval_config
 from opt2skill.eval.rollout import rollout
 from opt2skill.expert.acting import EnvExpert
 from opt2skill.model import load_robot
 from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.distill import Distiller
-from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config
-from opt2skill.rl.distill_session import set_actor_frozen, start_from_distilled
+from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
+from opt2skill.rl.distill_session import finetune_trainer, set_actor_frozen, start_from_distilled
 from opt2skill.rl.policy import Policy, build_actor
 from opt2skill.rl.trainer import Schedule, Trainer
 
@@ -157,9 +159,10 @@ def distill_then_ppo(args, robot, dataset, task, curve: Curve) -> None:
         curve.evaluate(actor, "distill", distiller.env_steps)
         distilled = {"actor_state_dict": actor.state_dict(), "elapsed": 0.0}
         offset = distiller.env_steps
-    bank = ReferenceBank.from_dataset(robot, dataset, task.observations.end_effectors)
-    with TrackingEnv(robot, bank, task, args.num_envs, seed=args.seed, threads=args.threads) as env:
-        trainer = Trainer(env, distill.finetune_ppo(), seed=args.seed)
+    finetune = finetune_tracking_config(task, distill)
+    bank = ReferenceBank.from_dataset(robot, dataset, finetune.observations.end_effectors)
+    with TrackingEnv(robot, bank, finetune, args.num_envs, seed=args.seed, threads=args.threads) as env:
+        trainer = finetune_trainer(env, dataset, distill, None, args.seed)
         start_from_distilled(trainer, distilled)
         ppo_phase(trainer, curve, args.budget_minutes * 60, "ppo", warmup=distill.critic_warmup_iterations,
                   step_offset=offset)
@@ -237,7 +240,7 @@ def main() -> None:
     held_out = Dataset.open(args.held_out)
     references = [held_out[i] for i in range(min(args.n_eval, len(held_out)))]
     task = tracking_config(dataset.identity.get("task", ""))
-    evaluation = evaluation_config(task)
+    evaluation = eval_config(task)  # as `opt2skill eval`: drift is measured, not ended; falls end
     header = (f"{machine()}; {len(dataset)} training and {len(references)} held-out references; "
               f"{args.budget_minutes:g} min per pipeline, {args.num_envs} worlds, {args.threads} threads")
     print(header)

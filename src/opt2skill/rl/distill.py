@@ -9,6 +9,8 @@ Each iteration:
    to 0 over the first part of the stage (DAgger's mixing, DART's injected noise). Every visited
    state where the expert is still valid (`ExpertConfig` limits) is stored with the expert's action
    as its label; a world that leaves the expert's valid region is reset (nothing to learn there).
+   The actor's observations carry Table II's noise times `DistillConfig.noise` (default 0); the
+   expert reads the true state.
 2. **Learn**: `updates_per_iteration` Adam steps of mean-squared action error on minibatches of the
    aggregated buffer (the newest `buffer_samples` labels). The observation normalizer follows the
    collected observations.
@@ -61,6 +63,22 @@ class LabelBuffer:
     def sample(self, batch: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         index = torch.randint(0, self.size, (batch,), generator=generator)
         return self.obs[index], self.label[index]
+
+
+def clone_steps(actor: MLPModel, optimizer: torch.optim.Optimizer, buffer: LabelBuffer, batch_size: int,
+                updates: int, generator: torch.Generator) -> float:
+    """`updates` optimizer steps of mean-squared action error on minibatches of `buffer`; the mean loss."""
+    losses = []
+    for _ in range(updates):
+        obs, label = buffer.sample(batch_size, generator)
+        prediction = actor(TensorDict({"actor": obs}, batch_size=[len(obs)]))
+        loss = torch.mean((prediction - label) ** 2)
+        optimizer.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(actor.parameters(), 1.0)
+        optimizer.step()
+        losses.append(loss.item())
+    return float(np.mean(losses))
 
 
 class Distiller:
@@ -126,7 +144,8 @@ class Distiller:
         seen = torch.from_numpy(np.concatenate(seen))
         self.actor.update_normalization(TensorDict({"actor": seen}, batch_size=[len(seen)]))
         figures = self.stats.summary(env.sim.policy_dt)
-        figures.update({"distill/expert_share": share, "distill/labelled_fraction": labelled / self.batch,
+        figures.update({"distill/expert_share": share, "distill/noise_factor": env.noise_factor,
+                        "distill/labelled_fraction": labelled / self.batch,
                         "distill/expert_lost_worlds": float(lost), "distill/buffer_samples": float(self.buffer.size)})
         return figures
 
@@ -136,18 +155,10 @@ class Distiller:
         lr = cfg.learning_rate_at(self.progress)
         for group in self.optimizer.param_groups:
             group["lr"] = lr
-        losses = []
         self.actor.train()
-        for _ in range(cfg.updates_per_iteration):
-            obs, label = self.buffer.sample(cfg.batch_size, self.generator)
-            prediction = self.actor(TensorDict({"actor": obs}, batch_size=[len(obs)]))
-            loss = torch.mean((prediction - label) ** 2)
-            self.optimizer.zero_grad()
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(self.actor.parameters(), 1.0)
-            self.optimizer.step()
-            losses.append(loss.item())
-        return {"distill/loss": float(np.mean(losses)), "distill/learning_rate": lr}
+        loss = clone_steps(self.actor, self.optimizer, self.buffer, cfg.batch_size, cfg.updates_per_iteration,
+                           self.generator)
+        return {"distill/loss": loss, "distill/learning_rate": lr}
 
     def train_iteration(self) -> dict[str, float]:
         start = time.perf_counter()

@@ -5,12 +5,15 @@ One frozen dataclass with defaults (docs/distill.md gives the reasoning and the 
 - the expert (`ExpertConfig`: how its torques become held PD targets, how far it is trusted);
 - the conditions it is distilled under: the Table II randomizations it tolerates, narrowed from the
   task's config by `distillation_tracking_config` (flat ground, short delays, friction near the
-  plan's, robot-side ranges halved), and the actor's observation noise (the labels never see it);
+  plan's, robot-side ranges halved), and the actor's observation noise, a factor on Table II (the
+  labels never see it; docs/distill.md measures why it is off);
 - DAgger with DART noise: the executed action blends the expert's and the actor's, the expert's share
   falling from 1 to 0 over `expert_share_until` of the stage, plus Gaussian noise on what is executed;
   every visited state where the expert is still valid is labelled with the expert's action;
 - behaviour cloning: mean-squared action error on an aggregated buffer of labelled samples;
-- the PPO stage: small initial action noise and a critic warm-up with the actor frozen.
+- the PPO stage: small initial action noise, a critic warm-up with the actor frozen, the noise
+  curriculum starting where the distillation left it (`finetune_tracking_config`), and the
+  behaviour-cloning loss kept as an anchor between PPO updates (`rl.anchor`).
 """
 
 from __future__ import annotations
@@ -51,6 +54,13 @@ class DistillConfig:
     # (mean change / std)^2: at half plain PPO's std, half its rate moves the policy as far.
     finetune_learning_rate: float = 2.5e-5
     critic_warmup_iterations: int = 30  # PPO iterations with the actor frozen
+    # The distillation's loss kept during PPO (`rl.anchor`): Adam steps on expert labels of the PPO
+    # stage's states after each PPO update (0: none).
+    anchor_updates: int = 8
+    anchor_learning_rate: float = 1e-4
+    # Factor on Table II's observation noise that the PPO stage's curriculum rises to: 1 is the paper;
+    # less is a diagnostic of what the noise costs (docs/distill.md), not a deployable policy.
+    finetune_noise: float = 1.0
 
     def check(self) -> None:
         def require(ok: bool, message: str) -> None:
@@ -64,7 +74,7 @@ class DistillConfig:
         require(self.delay[1] <= 0.02, f"distill delay must be at most 0.02 s, got {self.delay[1]}")
         require(0 <= self.robot_range <= 1, f"distill robot_range must be in [0, 1], got {self.robot_range}")
         require(0 <= self.rough_fraction <= 1, f"distill rough_fraction must be in [0, 1], got {self.rough_fraction}")
-        require(self.noise >= 0, f"distill noise must be >= 0, got {self.noise}")
+        require(0 <= self.noise <= 1, f"distill noise must be a factor in [0, 1] of Table II's, got {self.noise}")
         require(self.rollout_seconds > 0, f"distill rollout_seconds must be > 0, got {self.rollout_seconds}")
         require(0 <= self.expert_share_until <= 1, f"expert_share_until must be in [0, 1], got {self.expert_share_until}")
         require(self.action_noise >= 0, f"distill action_noise must be >= 0, got {self.action_noise}")
@@ -74,6 +84,9 @@ class DistillConfig:
         require(self.finetune_std > 0, f"finetune_std must be > 0, got {self.finetune_std}")
         require(self.finetune_learning_rate > 0, f"finetune_learning_rate must be > 0, got {self.finetune_learning_rate}")
         require(self.critic_warmup_iterations >= 0, "critic_warmup_iterations must be >= 0")
+        require(self.anchor_updates >= 0, f"anchor_updates must be >= 0, got {self.anchor_updates}")
+        require(self.anchor_learning_rate > 0, f"anchor_learning_rate must be > 0, got {self.anchor_learning_rate}")
+        require(0 <= self.finetune_noise <= 1, f"finetune_noise must be a factor in [0, 1] of Table II's, got {self.finetune_noise}")
 
     def steps_per_env(self, dt: float) -> int:
         return max(1, round(self.rollout_seconds / dt))
@@ -109,3 +122,17 @@ def distillation_tracking_config(config: TrackingConfig, distill: DistillConfig)
         rough_fraction=min(r.rough_fraction, distill.rough_fraction), **narrowed,
     )
     return dataclasses.replace(config, randomization=randomization)
+
+
+def finetune_tracking_config(config: TrackingConfig, distill: DistillConfig) -> TrackingConfig:
+    """The task's config for the PPO stage: Table II's randomization in full; the observation noise
+    scaled by `finetune_noise`, its curriculum starting from the noise the actor was distilled under
+    (not from 0: a drop the actor never saw, then a rise it was not ready for, docs/distill.md)."""
+    if distill.finetune_noise == 1.0 and distill.noise <= config.curriculum.noise_start:
+        return config
+    obs, curriculum = config.observations, config.curriculum
+    scale = distill.finetune_noise
+    noise = dataclasses.replace(obs.noise, **{f.name: scale * getattr(obs.noise, f.name) for f in dataclasses.fields(obs.noise)})
+    start = min(1.0, max(curriculum.noise_start, distill.noise / scale)) if scale > 0 else 0.0
+    return dataclasses.replace(config, observations=dataclasses.replace(obs, noise=noise),
+                               curriculum=dataclasses.replace(curriculum, noise_start=start))

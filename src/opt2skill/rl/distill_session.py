@@ -10,9 +10,11 @@ One command, two stages, each resumable (docs/distill.md):
 
 1. **Distillation** (`rl.distill.Distiller`) for `distill_steps` environment steps, under the Table II
    conditions the expert tolerates (`distillation_tracking_config`).
-2. **PPO** from the distilled actor: the task's full randomization and curriculum, initial action
-   noise `finetune_std`; its first `critic_warmup_iterations` iterations train the critic only (the
-   actor is frozen, its observation normalizer too), so the first policy updates see useful advantages.
+2. **PPO** from the distilled actor: the task's full randomization and curriculum (its noise starting
+   from the distillation's, `finetune_tracking_config`), initial action noise `finetune_std`; its first `critic_warmup_iterations` iterations train the critic only (the
+   actor is frozen, its observation normalizer too), so the first policy updates see useful advantages;
+   after each PPO update, behaviour-cloning steps toward the expert's labels of PPO's own states
+   (`rl.anchor`, `anchor_updates` > 0).
 
 Both stages log to TensorBoard with one step axis, the environment steps since the run began (the
 PPO stage's steps continue the distillation's), and wall-clock time continues across the stages in
@@ -35,8 +37,9 @@ from opt2skill.errors import ConfigError, DataError
 from opt2skill.expert.acting import EnvExpert
 from opt2skill.provenance import provenance
 from opt2skill.rl import checkpoint
+from opt2skill.rl.anchor import ExpertAnchor
 from opt2skill.rl.distill import Distiller
-from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config
+from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
 from opt2skill.rl.policy import build_actor
 from opt2skill.rl.run import RunSpec, differences, open_run, trim_progress
 from opt2skill.rl.session import TrainRequest, open_dataset, set_threads
@@ -140,6 +143,15 @@ def start_from_distilled(trainer: Trainer, distilled: dict[str, Any]) -> None:
     trainer.venv.stats.clear()
 
 
+def finetune_trainer(env: TrackingEnv, dataset, distill: DistillConfig, run: Path | None, seed: int) -> Trainer:
+    """The PPO stage's trainer on `env` (the fine-tuning config's), with the expert anchor if enabled."""
+    trainer = Trainer(env, distill.finetune_ppo(), run, seed=seed)
+    if distill.anchor_updates > 0:
+        expert = EnvExpert(env, [dataset[int(p)] for p in env.bank.positions], distill.expert)
+        trainer.anchor = ExpertAnchor(expert, trainer.alg.actor, distill, seed=seed)
+    return trainer
+
+
 def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool = True,
           distill: DistillConfig | None = None) -> dict[str, Any]:
     """Distil (or resume distilling), then train with PPO (or resume it); the last PPO iteration's figures."""
@@ -150,7 +162,8 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     distill.check()
     dataset, robot = open_dataset(request.dataset)
     _check_gains(dataset)
-    config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history)
+    config = finetune_tracking_config(tracking_config(dataset.identity.get("task", ""), request.ablation,
+                                                      request.history), distill)
     ppo = distill.finetune_ppo()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
@@ -172,7 +185,7 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
 
     bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
     with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
-        trainer = Trainer(env, ppo, request.out, seed=request.seed)
+        trainer = finetune_trainer(env, dataset, distill, request.out, request.seed)
         if not trainer.resume_latest():
             trim_progress(request.out, 0)
             start_from_distilled(trainer, distilled)

@@ -53,6 +53,9 @@ def build_algorithm(venv: TrackingVecEnv, ppo: PPOConfig) -> PPO:
 class Trainer:
     def __init__(self, env: TrackingEnv, ppo: PPOConfig, run: Path | None = None, seed: int = 0):
         self.env, self.ppo, self.run = env, ppo, (Path(run) if run is not None else None)
+        # Optional `rl.anchor.ExpertAnchor` on this trainer's actor (set before resuming): told each actor
+        # observation before the action (`observe`), trained after each PPO update (`learn`).
+        self.anchor = None
         torch.manual_seed(seed)
         self.venv = TrackingVecEnv(env, ppo.reward_scale or None)
         self.alg = build_algorithm(self.venv, ppo)
@@ -76,6 +79,7 @@ class Trainer:
             "env_rng": self.env.rng.bit_generator.state,
             "dims": {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu},
             "identity": self.identity(),
+            **({"anchor": self.anchor.state()} if self.anchor is not None else {}),
         }
 
     def identity(self) -> dict[str, Any]:
@@ -97,6 +101,8 @@ class Trainer:
             group["lr"] = data["learning_rate"]
         self.iteration, self.env_steps, self.elapsed = data["iteration"], data["env_steps"], data["elapsed"]
         torch.set_rng_state(data["torch_rng"])
+        if self.anchor is not None and "anchor" in data:
+            self.anchor.restore(data["anchor"])
         self.env.rng.bit_generator.state = data["env_rng"]
         self.env.set_progress(data["progress"])
         self.env.reset()
@@ -145,6 +151,8 @@ class Trainer:
         obs = venv.get_observations()
         with torch.inference_mode():
             for _ in range(self.steps_per_env):
+                if self.anchor is not None:
+                    self.anchor.observe(obs["actor"].numpy())
                 actions = alg.act(obs)
                 obs, rewards, dones, extras = venv.step(actions)
                 alg.process_env_step(obs, rewards, dones, extras)
@@ -152,6 +160,7 @@ class Trainer:
         collected = time.perf_counter()
         self._updating = True  # an interrupt now would leave the networks half updated
         losses = alg.update()
+        anchored = self.anchor.learn() if self.anchor is not None else {}
         self._updating = False
         learned = time.perf_counter()
         self.iteration += 1
@@ -159,6 +168,7 @@ class Trainer:
         self.elapsed += learned - start
         figures = venv.stats.summary(self.env.sim.policy_dt)
         figures.update({f"loss/{k}": float(v) for k, v in losses.items()})
+        figures.update(anchored)
         figures.update({
             "policy/learning_rate": float(alg.learning_rate),
             "policy/action_std": float(alg.get_policy().output_std.detach().mean()),
