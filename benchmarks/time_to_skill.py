@@ -43,12 +43,11 @@ from opt2skill.data.reader import Dataset
 from opt2skill.envs import ReferenceBank, TrackingEnv, tracking_config
 from opt2skill.eval.evaluate import eval_config
 from opt2skill.eval.rollout import rollout
-from opt2skill.expert.acting import EnvExpert
 from opt2skill.model import load_robot
 from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.distill import Distiller
 from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
-from opt2skill.rl.distill_session import finetune_trainer, set_actor_frozen, start_from_distilled
+from opt2skill.rl.distill_session import dataset_expert, finetune_trainer, set_actor_frozen, start_from_distilled
 from opt2skill.rl.policy import Policy, build_actor
 from opt2skill.rl.trainer import Schedule, Trainer
 
@@ -148,7 +147,7 @@ def distill_then_ppo(args, robot, dataset, task, curve: Curve) -> None:
     with TrackingEnv(robot, bank, env_config, args.num_envs, seed=args.seed, threads=args.threads) as env:
         torch.manual_seed(args.seed)
         actor = build_actor(distill.finetune_ppo(), env.actor_dim, env.critic_dim, env.nu)
-        expert = EnvExpert(env, [dataset[int(p)] for p in bank.positions], distill.expert)
+        expert = dataset_expert(env, dataset, distill)
         distiller = Distiller(env, expert, actor, distill, seed=args.seed)
         while curve.clock.now() < distill_end:
             if curve.due() and distiller.iteration > 0:

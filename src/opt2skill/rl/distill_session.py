@@ -103,7 +103,7 @@ def distill_stage(request: TrainRequest, dataset, robot, config, distill: Distil
     with TrackingEnv(robot, bank, env_config, request.num_envs, seed=request.seed, threads=threads) as env:
         torch.manual_seed(request.seed)
         actor = build_actor(distill.finetune_ppo(), env.actor_dim, env.critic_dim, env.nu)
-        expert = EnvExpert(env, [dataset[int(p)] for p in bank.positions], distill.expert)
+        expert = dataset_expert(env, dataset, distill)
         distiller = Distiller(env, expert, actor, distill, stage, seed=request.seed)
         if not distiller.resume_latest():
             trim_progress(stage, 0)
@@ -143,12 +143,16 @@ def start_from_distilled(trainer: Trainer, distilled: dict[str, Any]) -> None:
     trainer.venv.stats.clear()
 
 
+def dataset_expert(env: TrackingEnv, dataset, distill: DistillConfig) -> EnvExpert:
+    """The feedback expert of `env`'s references (the dataset's trajectories, with their gains)."""
+    return EnvExpert(env, [dataset[int(p)] for p in env.bank.positions], distill.expert)
+
+
 def finetune_trainer(env: TrackingEnv, dataset, distill: DistillConfig, run: Path | None, seed: int) -> Trainer:
     """The PPO stage's trainer on `env` (the fine-tuning config's), with the expert anchor if enabled."""
     trainer = Trainer(env, distill.finetune_ppo(), run, seed=seed)
     if distill.anchor_updates > 0:
-        expert = EnvExpert(env, [dataset[int(p)] for p in env.bank.positions], distill.expert)
-        trainer.anchor = ExpertAnchor(expert, trainer.alg.actor, distill, seed=seed)
+        trainer.anchor = ExpertAnchor(dataset_expert(env, dataset, distill), trainer.alg.actor, distill, seed=seed)
     return trainer
 
 
