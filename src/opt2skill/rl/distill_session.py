@@ -11,8 +11,9 @@ One command, two stages, each resumable (docs/distill.md):
 1. **Distillation** (`rl.distill.Distiller`) for `distill_steps` environment steps, under the Table II
    conditions the expert tolerates (`distillation_tracking_config`).
 2. **PPO** from the distilled actor: the task's full randomization and curriculum (its noise starting
-   from the distillation's, `finetune_tracking_config`), initial action noise `finetune_std`; its first `critic_warmup_iterations` iterations train the critic only (the
-   actor is frozen, its observation normalizer too), so the first policy updates see useful advantages;
+   from the distillation's, `finetune_tracking_config`), initial action noise `finetune_std`; its
+   first `critic_warmup_iterations` iterations train the critic only (the actor is frozen, its
+   observation normalizer too), so the first policy updates see useful advantages;
    after each PPO update, behaviour-cloning steps toward the expert's labels of PPO's own states
    (`rl.anchor`, `anchor_updates` > 0).
 
@@ -166,8 +167,8 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     distill.check()
     dataset, robot = open_dataset(request.dataset)
     _check_gains(dataset)
-    config = finetune_tracking_config(tracking_config(dataset.identity.get("task", ""), request.ablation,
-                                                      request.history), distill)
+    task = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history)
+    config = finetune_tracking_config(task, distill)  # the PPO stage's, recorded as the run's
     ppo = distill.finetune_ppo()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
@@ -180,7 +181,7 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     threads = set_threads(request.threads)
     distilled, resumed = None, {"distill": None, "ppo": None}  # the iteration each stage went on from
     if checkpoint.latest(request.out) is None:  # the PPO stage has not started: distil first
-        distilled, resumed["distill"] = distill_stage(request, dataset, robot, config, distill, distill_steps,
+        distilled, resumed["distill"] = distill_stage(request, dataset, robot, task, distill, distill_steps,
                                                       threads, progress)
     else:
         _open_stage(request.out, distill, distill_steps)  # same settings as before
