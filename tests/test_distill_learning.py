@@ -87,7 +87,8 @@ def test_the_expert_share_falls_to_zero_and_settings_are_checked():
     assert narrowed.delay == (0.0, 0.005) and narrowed.rough_fraction == 0.0
     assert narrowed.kp_factor == pytest.approx((0.95, 1.05)) and narrowed.friction_scale == (0.7, 1.0)
     for bad, match in ((dict(robot_range=2.0), "robot_range"), (dict(batch_size=10**7), "buffer_samples"),
-                       (dict(delay=(0.01, 0.0)), "delay"), (dict(noise=1.5), "noise must be a factor in")):
+                       (dict(delay=(0.01, 0.0)), "delay"), (dict(noise=1.5), "noise must be a factor in"),
+                       (dict(anchor_updates=-1), "anchor_updates"), (dict(anchor_learning_rate=0.0), "anchor_learning_rate")):
         with pytest.raises(ConfigError, match=match):
             dataclasses.replace(DistillConfig(), **bad).check()
 

@@ -144,8 +144,7 @@ class Distiller:
         seen = torch.from_numpy(np.concatenate(seen))
         self.actor.update_normalization(TensorDict({"actor": seen}, batch_size=[len(seen)]))
         figures = self.stats.summary(env.sim.policy_dt)
-        figures.update({"distill/expert_share": share, "distill/noise_factor": env.noise_factor,
-                        "distill/labelled_fraction": labelled / self.batch,
+        figures.update({"distill/expert_share": share, "distill/labelled_fraction": labelled / self.batch,
                         "distill/expert_lost_worlds": float(lost), "distill/buffer_samples": float(self.buffer.size)})
         return figures
 

@@ -128,8 +128,6 @@ def finetune_tracking_config(config: TrackingConfig, distill: DistillConfig) -> 
     """The task's config for the PPO stage: Table II's randomization in full; the observation noise
     scaled by `finetune_noise`, its curriculum starting from the noise the actor was distilled under
     (not from 0: a drop the actor never saw, then a rise it was not ready for, docs/distill.md)."""
-    if distill.finetune_noise == 1.0 and distill.noise <= config.curriculum.noise_start:
-        return config
     obs, curriculum = config.observations, config.curriculum
     scale = distill.finetune_noise
     noise = dataclasses.replace(obs.noise, **{f.name: scale * getattr(obs.noise, f.name) for f in dataclasses.fields(obs.noise)})
