@@ -99,7 +99,10 @@ def test_ppo_after_distillation_starts_its_noise_where_the_distillation_left_it(
     assert finetune.curriculum.factors(0.0) == pytest.approx((0.4, task.curriculum.penalty_start))
     assert finetune.curriculum.factors(1.0) == (1.0, 1.0)  # then the whole of Table II, as plain PPO
     assert finetune.randomization == task.randomization and finetune.rewards == task.rewards
-    assert finetune_tracking_config(task, DistillConfig(noise=0.0)) == task
+    # Table II's ranges are reached over the curriculum, from about the distillation's width.
+    assert finetune.curriculum.randomization_width(0.0) == 0.25 and finetune.curriculum.randomization_width(1.0) == 1.0
+    paper = finetune_tracking_config(task, DistillConfig(noise=0.0, finetune_randomization=1.0))
+    assert paper == task  # the paper's PPO stage: full randomization from the first iteration
     # A diagnostic PPO stage with half of Table II's noise: the same absolute noise at its start.
     half = finetune_tracking_config(task, DistillConfig(noise=0.25, finetune_noise=0.5))
     assert half.observations.noise.joint_pos == pytest.approx(0.5 * task.observations.noise.joint_pos)
@@ -108,6 +111,8 @@ def test_ppo_after_distillation_starts_its_noise_where_the_distillation_left_it(
     assert all(getattr(silent, f.name) == 0.0 for f in dataclasses.fields(silent))
     with pytest.raises(ConfigError, match="finetune_noise"):
         DistillConfig(finetune_noise=2.0).check()
+    with pytest.raises(ConfigError, match="finetune_randomization"):
+        DistillConfig(finetune_randomization=-0.1).check()
 
 
 def test_the_anchor_keeps_ppo_near_the_expert(squats):

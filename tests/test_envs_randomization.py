@@ -11,6 +11,7 @@ import pytest
 from envs_support import ROBOT, make_env, recorded_reference
 
 from opt2skill.envs import tracking_config
+from opt2skill.errors import ConfigError
 from opt2skill.sim import Flat
 
 
@@ -76,6 +77,36 @@ def test_rough_worlds_stand_on_their_terrain_and_disabled_randomization_is_nomin
     np.testing.assert_array_equal(params.terrain, 0)
     assert len(env.terrains) == 1
     env.close()
+
+
+def test_the_curriculum_widens_table_ii_from_the_nominal_world(recorded):
+    """With `randomization_start` 0, resets early in training draw the nominal world; halfway up the
+    ramp, ranges of half the width around it; at the ramp's end, Table II in full."""
+    traj, _ = recorded
+    config = training_config(rough_fraction=0.5)
+    config = dataclasses.replace(config, curriculum=dataclasses.replace(config.curriculum, randomization_start=0.0,
+                                                                        ramp=(0.2, 0.6)))
+    full = config.randomization
+    env = make_env([traj], config, num_envs=64, seed=2)
+    nominal = {name: (0.0 if name == "delay" else 1.0) for name in full.RANGES}
+    for progress, width in ((0.0, 0.0), (0.4, 0.5), (1.0, 1.0)):
+        env.set_progress(progress)
+        assert env.randomization_width == pytest.approx(width)
+        env.reset()
+        params = env.sim.params
+        for name, (lo, hi) in full.ranges().items():
+            value = getattr(params, name)[:, 1:] if name == "mass_scale" else getattr(params, name)
+            c = nominal[name]
+            bounds = (c + width * (lo - c), c + width * (hi - c))
+            assert bounds[0] - 1e-12 <= value.min() and value.max() <= bounds[1] + 1e-12, (name, progress)
+            if width > 0 and hi > lo:  # spread over the narrowed range, not stuck at nominal
+                assert value.max() - value.min() > 0.5 * (bounds[1] - bounds[0]), (name, progress)
+        rough = np.mean(params.terrain > 0)
+        assert (rough == 0) if width == 0 else (0.1 < rough < 0.5 * width + 0.2), (progress, rough)
+    env.close()
+    with pytest.raises(ConfigError, match="curriculum start factors"):
+        dataclasses.replace(config.curriculum, randomization_start=1.5).check()
+    assert full.narrowed(1.0) is full and full.narrowed(0.0).friction_scale == (1.0, 1.0)
 
 
 def test_observation_noise_is_table_ii_scaled_by_the_curriculum_and_only_for_the_actor(recorded):

@@ -160,6 +160,20 @@ class RandomizationConfig:
     def ranges(self) -> dict[str, tuple[float, float]]:
         return {name: getattr(self, name) for name in self.RANGES}
 
+    def narrowed(self, width: float) -> RandomizationConfig:
+        """These ranges shrunk toward the nominal world (no delay, factors of 1) to `width` in [0, 1] of
+        their size, and the rough share with them: the curriculum's randomization at a given factor."""
+        if width >= 1:
+            return self
+
+        def toward_nominal(name: str) -> tuple[float, float]:
+            nominal = 0.0 if name == "delay" else 1.0
+            lo, hi = getattr(self, name)
+            return nominal + width * (lo - nominal), nominal + width * (hi - nominal)
+
+        return dataclasses.replace(self, rough_fraction=width * self.rough_fraction,
+                                   **{name: toward_nominal(name) for name in self.RANGES})
+
     def check(self) -> None:
         for name, (lo, hi) in self.ranges().items():
             _require(0 <= lo <= hi, f"randomization '{name}' must be a range 0 <= low <= high, got ({lo}, {hi})")
@@ -174,21 +188,34 @@ class RandomizationConfig:
 class CurriculumConfig:
     """Noise curriculum (Section III-B): observation noise and penalty weights are multiplied by a
     factor rising linearly from `*_start` to 1 while training progress goes from `ramp[0]` to `ramp[1]`
-    (progress = env steps done / env steps planned, told by the runner)."""
+    (progress = env steps done / env steps planned, told by the runner).
+
+    The width of Table II's ranges can follow the same ramp (`randomization_start` < 1, an addition to
+    the paper, which randomizes in full from the start): the PPO stage after distillation starts near
+    the conditions the actor was distilled under (docs/distill.md)."""
 
     noise_start: float = 0.0
     penalty_start: float = 0.1
+    randomization_start: float = 1.0
     ramp: tuple[float, float] = (0.1, 0.6)
 
     def check(self) -> None:
-        _require(0 <= self.noise_start <= 1 and 0 <= self.penalty_start <= 1, "curriculum start factors must be in [0, 1]")
+        starts = (self.noise_start, self.penalty_start, self.randomization_start)
+        _require(all(0 <= s <= 1 for s in starts), f"curriculum start factors must be in [0, 1], got {starts}")
         _require(0 <= self.ramp[0] <= self.ramp[1] <= 1, f"curriculum ramp must satisfy 0 <= start <= end <= 1, got {self.ramp}")
+
+    def _rise(self, start: float, progress: float) -> float:
+        lo, hi = self.ramp
+        x = 1.0 if hi <= lo else min(max((progress - lo) / (hi - lo), 0.0), 1.0)
+        return start + (1 - start) * x
 
     def factors(self, progress: float) -> tuple[float, float]:
         """(noise factor, penalty factor) at training progress in [0, 1]."""
-        lo, hi = self.ramp
-        x = 1.0 if hi <= lo else min(max((progress - lo) / (hi - lo), 0.0), 1.0)
-        return self.noise_start + (1 - self.noise_start) * x, self.penalty_start + (1 - self.penalty_start) * x
+        return self._rise(self.noise_start, progress), self._rise(self.penalty_start, progress)
+
+    def randomization_width(self, progress: float) -> float:
+        """The fraction of Table II's range widths drawn from at training progress in [0, 1]."""
+        return self._rise(self.randomization_start, progress)
 
 
 @dataclass(frozen=True)

@@ -93,8 +93,7 @@ class TrackingEnv:
         self._act_hist = StridedHistory(n, nu, obs.history, obs.stride)
         self._q_hist = StridedHistory(n, nu, obs.history, obs.stride)
         self._q_hist_noisy = StridedHistory(n, nu, obs.history, obs.stride)
-        self.progress = 0.0
-        self.noise_factor, self.penalty_factor = config.curriculum.factors(0.0)
+        self.set_progress(0.0)
         self.m: Measurement | None = None
         self.state: SimStep | None = None  # the latest simulator outputs (privileged state, e.g. qpos, qvel)
         self.reset()
@@ -110,9 +109,13 @@ class TrackingEnv:
         return self.layout.critic_dim
 
     def set_progress(self, progress: float) -> None:
-        """Training progress in [0, 1]: sets the curriculum's noise and penalty factors."""
+        """Training progress in [0, 1]: sets the curriculum's noise and penalty factors and the width of
+        the randomization drawn at the next resets."""
         self.progress = float(min(max(progress, 0.0), 1.0))
-        self.noise_factor, self.penalty_factor = self.config.curriculum.factors(self.progress)
+        curriculum = self.config.curriculum
+        self.noise_factor, self.penalty_factor = curriculum.factors(self.progress)
+        self.randomization_width = curriculum.randomization_width(self.progress)
+        self._randomization = self.config.randomization.narrowed(self.randomization_width)
 
     def reference_index(self) -> tuple[np.ndarray, np.ndarray]:
         """(dataset position of each world's trajectory, its current frame t)."""
@@ -148,8 +151,7 @@ class TrackingEnv:
             raise ConfigError("reset: trajectory or start frame out of range")
         rows = bank.start[traj] + frames
         qpos, qvel = bank.state(rows)
-        params = randomization.sample_params(self.rng, k, self.sim.nbody, self.nu, self.config.randomization,
-                                             self.terrains)
+        params = randomization.sample_params(self.rng, k, self.sim.nbody, self.nu, self._randomization, self.terrains)
         targets = qpos[:, 7:]
         out = self.sim.reset(worlds, qpos, qvel, targets=targets, params=params)
         m = measure(out, self.sim.z_offset[worlds], self._ee_index)

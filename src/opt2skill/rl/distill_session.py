@@ -10,8 +10,9 @@ One command, two stages, each resumable (docs/distill.md):
 
 1. **Distillation** (`rl.distill.Distiller`) for `distill_steps` environment steps, under the Table II
    conditions the expert tolerates (`distillation_tracking_config`).
-2. **PPO** from the distilled actor: the task's full randomization and curriculum (its noise starting
-   from the distillation's, `finetune_tracking_config`), initial action noise `finetune_std`; its
+2. **PPO** from the distilled actor: the task's randomization and curriculum, the randomization's
+   width and the noise rising from about the distillation's (`finetune_tracking_config`), initial
+   action noise `finetune_std`; its
    first `critic_warmup_iterations` iterations train the critic only (the actor is frozen, its
    observation normalizer too), so the first policy updates see useful advantages;
    after each PPO update, behaviour-cloning steps toward the expert's labels of PPO's own states

@@ -175,6 +175,7 @@ class Trainer:
             "curriculum/progress": self.env.progress,
             "curriculum/noise_factor": self.env.noise_factor,
             "curriculum/penalty_factor": self.env.penalty_factor,
+            "curriculum/randomization_width": self.env.randomization_width,
             "perf/env_steps_per_s": self.batch / (collected - start),
             "perf/learner_samples_per_s": self.batch * self.ppo.num_learning_epochs / (learned - collected),
             "perf/iteration_s": learned - start,
