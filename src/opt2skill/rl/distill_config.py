@@ -63,8 +63,8 @@ class DistillConfig:
     finetune_noise: float = 1.0
     # Width of Table II's randomization ranges (around the nominal world) that the PPO stage's
     # curriculum starts from, rising to 1 with the noise: 1 randomizes in full from the first
-    # iteration (the paper's way), which wrecks the distilled actor (docs/distill.md). 0.25 is about the
-    # distillation's conditions (its delays of 5 ms are a quarter of Table II's 20 ms).
+    # iteration (the paper's way), which wrecks the distilled actor fastest (docs/distill.md). 0.25 is
+    # about the distillation's conditions (its delays of 5 ms are a quarter of Table II's 20 ms).
     finetune_randomization: float = 0.25
 
     def check(self) -> None:
