@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 from envs_support import ROBOT, make_env, recorded_reference
 
-from opt2skill.envs import tracking_config
+from opt2skill.envs import evaluation_config, tracking_config
+from opt2skill.envs.config import nominal_ranges
 from opt2skill.errors import ConfigError
 from opt2skill.sim import Flat
 
@@ -174,3 +175,38 @@ def test_a_diverged_world_is_reset_and_counted_and_the_others_do_not_notice(reco
     np.testing.assert_array_equal(broken.reward[others], good.reward[others])
     for env in envs:
         env.close()
+
+
+def test_pushes_change_the_base_velocity_within_their_range_on_their_schedule(recorded):
+    traj, targets = recorded
+    config = training_config(push_speed=0.5, push_interval=(0.05, 0.1), **nominal_ranges(tracking_config("x").randomization))
+    env = make_env([traj], config, num_envs=16, seed=5)
+    env.reset_worlds(np.arange(16), np.zeros(16, dtype=int), np.zeros(16, dtype=int))
+    hold = np.tile(env.actions_for_targets(targets[0]), (16, 1))
+    pushed, kicks = 0, []
+    for _ in range(40):
+        before = env.state.qvel[:, :3].copy()
+        countdown = env._push_countdown.copy()
+        result = env.step(hold)
+        due = countdown == 1  # these worlds were pushed at the start of this step
+        assert result.pushed == due.sum()
+        pushed += result.pushed
+        if due.any():
+            # the 5 ms step after a push changes the base velocity by about the push (gravity and contact aside)
+            kicks.append(np.linalg.norm((env.state.qvel[due, :2] - before[due, :2]), axis=1))
+    kicks = np.concatenate(kicks)
+    assert pushed >= 16 * 40 // 20 // 2  # every 10-20 steps per world
+    assert kicks.max() <= 0.5 + 0.1 and kicks.mean() > 0.1
+
+
+def test_pushes_are_off_in_the_nominal_evaluation_and_scale_with_the_curriculum():
+    config = tracking_config("walk")
+    assert config.randomization.push_speed > 0  # training pushes by default (Section III-B)
+    assert evaluation_config(config).randomization.push_speed == 0
+    assert evaluation_config(config, randomize=True, noise=True).randomization.push_speed == 0
+    assert evaluation_config(config, pushes=True).randomization.push_speed == config.randomization.push_speed
+    assert config.randomization.narrowed(0.5).push_speed == pytest.approx(0.5 * config.randomization.push_speed)
+    with pytest.raises(ConfigError, match="push_speed"):
+        training_config(push_speed=-1).check()
+    with pytest.raises(ConfigError, match="push_interval"):
+        training_config(push_interval=(3.0, 1.0)).check()

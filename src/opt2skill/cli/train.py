@@ -40,10 +40,16 @@ def train(
     init: str = typer.Option("scratch", "--init", help="scratch: PPO from an untrained actor; distill: distil the "
                              "optimizer's feedback expert into the actor first (dataset made with --keep-gains)."),
     distill_steps: int = typer.Option(2_000_000, "--distill-steps", help="Environment steps of distillation (--init distill)."),
+    held_out: Path = typer.Option(None, "--held-out", help="References of another seed: every --judge-every "
+                                  "iterations the actor tracks them under Table II and noise; the best is kept "
+                                  "in RUN/best (what eval and export take by default)."),
+    judge_every: int = typer.Option(50, "--judge-every", help="Iterations between held-out judgements."),
+    judge_n: int = typer.Option(10, "--judge-n", help="Held-out references per judgement."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Train a tracking policy on a dataset (PPO, rsl_rl); checkpoints, TensorBoard logs, resume."""
     from opt2skill.errors import ConfigError
+    from opt2skill.rl.best import JudgeConfig
     from opt2skill.rl.session import TrainRequest
     from opt2skill.rl.session import train as run
 
@@ -52,7 +58,8 @@ def train(
 
     request = TrainRequest(dataset=dataset, out=out, steps=steps, num_envs=num_envs, history=history,
                            ablation=ablation, seed=seed, threads=threads, checkpoint_every=checkpoint_every,
-                           command=shlex.join(["opt2skill", *sys.argv[1:]]))
+                           command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out,
+                           judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed))
     request.check()
     _terminate_as_interrupt()
     if init == "distill":

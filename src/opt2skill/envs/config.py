@@ -154,6 +154,11 @@ class RandomizationConfig:
     rough_amplitude: float = 0.02  # m, heights uniform in [-a, a]
     rough_cell: float = 0.4  # m, lattice of random heights (interpolated on the 0.2 m grid)
     rough_variants: int = 4  # distinct rough terrains (seeded)
+    # External disturbances (Section III-B names them beside Table II): every `push_interval` seconds
+    # (uniform) a world's base gets a horizontal velocity change of uniform direction and a speed
+    # uniform in [0, push_speed] m/s. 0 switches pushes off.
+    push_speed: float = 0.3  # m/s
+    push_interval: tuple[float, float] = (2.0, 6.0)  # s
 
     RANGES = ("delay", "motor_strength", "kp_factor", "kd_factor", "mass_scale", "gravity_scale", "friction_scale")
 
@@ -171,7 +176,7 @@ class RandomizationConfig:
             lo, hi = getattr(self, name)
             return nominal + width * (lo - nominal), nominal + width * (hi - nominal)
 
-        return dataclasses.replace(self, rough_fraction=width * self.rough_fraction,
+        return dataclasses.replace(self, rough_fraction=width * self.rough_fraction, push_speed=width * self.push_speed,
                                    **{name: toward_nominal(name) for name in self.RANGES})
 
     def check(self) -> None:
@@ -182,6 +187,9 @@ class RandomizationConfig:
         _require(0 <= self.rough_amplitude <= 0.1, f"rough_amplitude must be in [0, 0.1] m, got {self.rough_amplitude}")
         _require(0.2 <= self.rough_cell <= 5, f"rough_cell must be in [0.2, 5] m, got {self.rough_cell}")
         _require(1 <= self.rough_variants <= 32, f"rough_variants must be in [1, 32], got {self.rough_variants}")
+        _require(0 <= self.push_speed <= 3, f"push_speed must be in [0, 3] m/s, got {self.push_speed}")
+        lo, hi = self.push_interval
+        _require(0.05 <= lo <= hi, f"push_interval must be a range 0.05 <= low <= high seconds, got ({lo}, {hi})")
 
 
 @dataclass(frozen=True)
@@ -276,12 +284,22 @@ def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10
     return config
 
 
-def evaluation_config(config: TrackingConfig, randomize: bool = False, noise: bool = False) -> TrackingConfig:
-    """The same task for evaluation: randomization and observation noise off unless asked for,
-    every episode from frame 0, the curriculum at its end."""
+def nominal_ranges(randomization: RandomizationConfig) -> dict:
+    """Table II's ranges collapsed to the nominal world (no delay, factors of 1, flat ground)."""
+    ranges = {name: ((0.0, 0.0) if name == "delay" else (1.0, 1.0)) for name in randomization.RANGES}
+    return {**ranges, "rough_fraction": 0.0}
+
+
+def evaluation_config(config: TrackingConfig, randomize: bool = False, noise: bool = False,
+                      pushes: bool = False) -> TrackingConfig:
+    """The same task for evaluation: randomization (Table II), pushes and observation noise off unless
+    asked for, every episode from frame 0, the curriculum at its end."""
+    randomization = config.randomization
     return dataclasses.replace(
         config,
-        randomization=dataclasses.replace(config.randomization, enabled=randomize),
+        randomization=dataclasses.replace(randomization, enabled=randomize or pushes,
+                                          push_speed=randomization.push_speed if pushes else 0.0,
+                                          **({} if randomize else nominal_ranges(randomization))),
         observations=config.observations if noise else dataclasses.replace(
             config.observations, noise=NoiseConfig(0.0, 0.0, 0.0, 0.0, 0.0)),
         episodes=dataclasses.replace(config.episodes, start_at_zero=1.0),

@@ -50,6 +50,7 @@ class StepResult:
     terms: dict[str, np.ndarray]  # term -> (N,) weighted value of this step
     episodes: Episodes | None  # the episodes that ended in this step
     unstable: int = 0  # worlds whose physics diverged this step (reset, counted)
+    pushed: int = 0  # worlds pushed at the start of this step (RandomizationConfig.push_speed)
     info: dict = field(default_factory=dict)
 
 
@@ -93,6 +94,7 @@ class TrackingEnv:
         self._act_hist = StridedHistory(n, nu, obs.history, obs.stride)
         self._q_hist = StridedHistory(n, nu, obs.history, obs.stride)
         self._q_hist_noisy = StridedHistory(n, nu, obs.history, obs.stride)
+        self._push_countdown = np.zeros(n, dtype=np.int64)  # policy steps until each world's next push
         self.set_progress(0.0)
         self.m: Measurement | None = None
         self.state: SimStep | None = None  # the latest simulator outputs (privileged state, e.g. qpos, qvel)
@@ -166,6 +168,7 @@ class TrackingEnv:
         self.steps[worlds] = 0
         self._ep_reward[worlds] = 0.0
         self._ep_terms[worlds] = 0.0
+        self._push_countdown[worlds] = self._push_intervals(k)
         held = self.actions_for_targets(targets)  # the action that held the start pose
         self.action_1[worlds] = held
         self.action_2[worlds] = held
@@ -181,6 +184,7 @@ class TrackingEnv:
         a = np.clip(np.asarray(actions, dtype=np.float64), -cfg.actions.clip, cfg.actions.clip)
         if a.shape != (self.num_envs, self.nu):
             raise ConfigError(f"actions must have shape {(self.num_envs, self.nu)}, got {a.shape}")
+        pushed = self._push()
         out = self.sim.step(self.default_pose + self.action_scale * a)
         m = measure(out, self.sim.z_offset, self._ee_index)
         bank = self.bank
@@ -218,7 +222,8 @@ class TrackingEnv:
                                 cause[worlds].copy(), worlds, out.rows(worlds))
             self.reset_worlds(worlds)
         actor, critic = self.observations()
-        return StepResult(actor, critic, reward, done & ~truncated, truncated, terms, episodes, int(unstable.sum()))
+        return StepResult(actor, critic, reward, done & ~truncated, truncated, terms, episodes, int(unstable.sum()),
+                          pushed)
 
     def observations(self) -> tuple[np.ndarray, np.ndarray]:
         """(actor (N, actor_dim), critic (N, critic_dim)) float32 of the current state."""
@@ -256,6 +261,33 @@ class TrackingEnv:
         self.close()
 
     # ------------------------------------------------------------------ internals
+
+    def _pushes_on(self) -> bool:
+        r = self._randomization
+        return r.enabled and r.push_speed > 0
+
+    def _push_intervals(self, k: int) -> np.ndarray:
+        """Policy steps until the next push of k worlds (drawn whether or not pushes are on, so that
+        switching them on does not change the other draws of a seeded run)."""
+        lo, hi = self.config.randomization.push_interval
+        return np.maximum(np.rint(self.rng.uniform(lo, hi, k) / self.sim.policy_dt), 1).astype(np.int64)
+
+    def _push(self) -> int:
+        """Push the worlds whose countdown ran out: a horizontal base-velocity change (world frame) of
+        uniform direction and a speed uniform in [0, push_speed]; the number pushed."""
+        if not self._pushes_on():
+            return 0
+        self._push_countdown -= 1
+        due = np.flatnonzero(self._push_countdown <= 0)
+        if len(due) == 0:
+            return 0
+        k = len(due)
+        speed = self._randomization.push_speed * self.rng.random(k)
+        heading = self.rng.uniform(-np.pi, np.pi, k)
+        velocity = np.stack([speed * np.cos(heading), speed * np.sin(heading), np.zeros(k)], axis=1)
+        self.sim.push(due, velocity)
+        self._push_countdown[due] = self._push_intervals(k)
+        return k
 
     def _causes(self, m: Measurement, errors: dict[str, np.ndarray], kin: dict[str, np.ndarray],
                 unstable: np.ndarray) -> np.ndarray:

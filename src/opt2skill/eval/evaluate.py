@@ -73,21 +73,22 @@ def load_run_policy(run: Path, checkpoint: Path | None = None) -> RunPolicy:
     if robot.hash != spec.robot_hash:
         raise DataError(f"run {run} was trained on a different '{spec.robot}' robot file (hash {spec.robot_hash[:12]}); "
                         f"the installed one has hash {robot.hash[:12]}")
-    path = Path(checkpoint) if checkpoint else checkpoints.latest(run)
+    path = Path(checkpoint) if checkpoint else checkpoints.policy_default(run)
     if path is None:
         raise DataError(f"run {run} has no checkpoint yet")
     ppo_dir, distill_dir = checkpoints.policy_checkpoint_dirs(run)
-    if path.resolve().parent not in (ppo_dir.resolve(), distill_dir.resolve()):
+    best_dir = checkpoints.best_path(run).parent
+    if path.resolve().parent not in (ppo_dir.resolve(), distill_dir.resolve(), best_dir.resolve()):
         # A checkpoint carries no task or robot: only its own run says what it was trained for.
-        raise DataError(f"checkpoint {path} is not one of run {run}'s ({ppo_dir}, or {distill_dir} for the "
-                        "distillation stage); evaluate the run it belongs to")
+        raise DataError(f"checkpoint {path} is not one of run {run}'s ({ppo_dir}, {distill_dir} for the "
+                        f"distillation stage, or {best_dir}); evaluate the run it belongs to")
     policy, _ = load_policy(run, path)
     expected = layout(spec.tracking.observations, robot.nu, len(robot.config.feet)).actor_dim
     if policy.obs_dim != expected:
         raise DataError(f"checkpoint {path} takes {policy.obs_dim} observations; run {run}'s task gives {expected} "
                         "(a checkpoint of another run or configuration)")
     t = spec.tracking
-    stage = "distillation " if path.resolve().parent == distill_dir.resolve() else ""
+    stage = {distill_dir.resolve(): "distillation ", best_dir.resolve(): "best: "}.get(path.resolve().parent, "")
     name = f"{run.name} ({stage}iteration {policy.iteration})"
     info = {
         "name": name, "run": str(run.resolve()), "checkpoint": str(path.resolve()), "iteration": policy.iteration,

@@ -27,6 +27,20 @@ _NAME = re.compile(r"^model_(\d{8})\.pt$")
 DISTILL_STAGE_DIR = "distill"  # RUN/distill: the distillation stage of `train --init distill`
 
 
+BEST_DIR = "best"  # RUN/best/model.pt: the best actor by held-out judgement (rl.best)
+
+
+def best_path(run: Path) -> Path:
+    return Path(run) / BEST_DIR / "model.pt"
+
+
+def policy_default(run: Path) -> Path | None:
+    """The checkpoint that eval and export take when none is named: the best by held-out judgement if
+    the run kept one (rl.best), else the newest."""
+    best = best_path(run)
+    return best if best.is_file() else latest(run)
+
+
 def checkpoint_dir(run: Path) -> Path:
     return Path(run) / "checkpoints"
 

@@ -34,6 +34,7 @@ from tensordict import TensorDict
 from opt2skill.envs import TrackingEnv
 from opt2skill.expert.acting import EnvExpert
 from opt2skill.rl import checkpoint
+from opt2skill.rl.best import judge_actor
 from opt2skill.rl.distill_config import DistillConfig
 from opt2skill.rl.run import trim_progress
 from opt2skill.rl.trainer import log_iteration
@@ -98,6 +99,7 @@ class Distiller:
         self.stats = EpisodeStats(tuple(env.config.rewards.terms()))
         self.iteration, self.env_steps, self.elapsed = 0, 0, 0.0
         self.total_iterations = 1
+        self.judge = None  # optional `rl.best.HeldOutJudge`, as `Trainer.judge`
         self._set_noise()
         self._obs, _ = env.observations()
 
@@ -195,9 +197,13 @@ class Distiller:
                     bar.set_postfix_str(f"loss {figures['distill/loss']:.4f}, expert {figures['distill/expert_share']:.2f}",
                                         refresh=False)
                 due = self.iteration % checkpoint_every == 0 or time.monotonic() - last_save > 60 * checkpoint_minutes
-                if self.run is not None and (due or self.iteration == total_iterations):
-                    self.save()
+                judged = self.judge is not None and (self.judge.due(self.iteration) or self.iteration == total_iterations)
+                if self.run is not None and (due or judged or self.iteration == total_iterations):
+                    saved = self.save()
                     last_save = time.monotonic()
+                    if judged:
+                        self._log(judge_actor(self.judge, self.actor, saved, "distill", self.iteration,
+                                              self.env_steps), writer, progress_file=False)
         except KeyboardInterrupt:
             if self.run is not None and self.iteration > 0:
                 self.save()  # the last whole iteration; the rollout in flight is dropped
@@ -207,8 +213,9 @@ class Distiller:
                 bar.close()
         return figures
 
-    def _log(self, figures: dict[str, float], writer) -> None:
-        log_iteration(self.run, writer, self.iteration, self.env_steps, self.elapsed, figures)
+    def _log(self, figures: dict[str, float], writer, progress_file: bool = True) -> None:
+        log_iteration(self.run if progress_file else None, writer, self.iteration, self.env_steps, self.elapsed,
+                      figures)
 
     # ------------------------------------------------------------ checkpoints
 

@@ -37,6 +37,7 @@ class DistillConfig:
     friction_scale: tuple[float, float] = (0.7, 1.0)
     robot_range: float = 0.5  # fraction of Table II's robot-side ranges kept, around 1
     rough_fraction: float = 0.0  # the expert falls on the +-2 cm rough terrain
+    push_speed: float = 0.0  # m/s, largest push while distilling (the expert is a local law)
     noise: float = 0.0  # factor on the actor's observation noise (Table II) while distilling (docs/distill.md)
     # DAgger and DART.
     rollout_seconds: float = 0.12  # s of experience per world per iteration
@@ -79,6 +80,7 @@ class DistillConfig:
         require(self.delay[1] <= 0.02, f"distill delay must be at most 0.02 s, got {self.delay[1]}")
         require(0 <= self.robot_range <= 1, f"distill robot_range must be in [0, 1], got {self.robot_range}")
         require(0 <= self.rough_fraction <= 1, f"distill rough_fraction must be in [0, 1], got {self.rough_fraction}")
+        require(0 <= self.push_speed <= 3, f"distill push_speed must be in [0, 3] m/s, got {self.push_speed}")
         require(0 <= self.noise <= 1, f"distill noise must be a factor in [0, 1] of Table II's, got {self.noise}")
         require(self.rollout_seconds > 0, f"distill rollout_seconds must be > 0, got {self.rollout_seconds}")
         require(0 <= self.expert_share_until <= 1, f"expert_share_until must be in [0, 1], got {self.expert_share_until}")
@@ -126,7 +128,8 @@ def distillation_tracking_config(config: TrackingConfig, distill: DistillConfig)
     randomization = dataclasses.replace(
         r, delay=(max(r.delay[0], distill.delay[0]), min(r.delay[1], distill.delay[1])),
         friction_scale=(max(r.friction_scale[0], distill.friction_scale[0]), min(r.friction_scale[1], distill.friction_scale[1])),
-        rough_fraction=min(r.rough_fraction, distill.rough_fraction), **narrowed,
+        rough_fraction=min(r.rough_fraction, distill.rough_fraction), push_speed=min(r.push_speed, distill.push_speed),
+        **narrowed,
     )
     return dataclasses.replace(config, randomization=randomization)
 

@@ -44,7 +44,7 @@ from opt2skill.rl.distill import Distiller
 from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
 from opt2skill.rl.policy import build_actor
 from opt2skill.rl.run import RunSpec, differences, open_run, trim_progress
-from opt2skill.rl.session import TrainRequest, open_dataset, set_threads
+from opt2skill.rl.session import TrainRequest, held_out_judge, open_dataset, set_threads
 from opt2skill.rl.trainer import Schedule, Trainer
 
 STAGE_DIR = checkpoint.DISTILL_STAGE_DIR
@@ -107,6 +107,7 @@ def distill_stage(request: TrainRequest, dataset, robot, config, distill: Distil
         actor = build_actor(distill.finetune_ppo(), env.actor_dim, env.critic_dim, env.nu)
         expert = dataset_expert(env, dataset, distill)
         distiller = Distiller(env, expert, actor, distill, stage, seed=request.seed)
+        distiller.judge = held_out_judge(request, dataset, robot, config, threads)
         if not distiller.resume_latest():
             trim_progress(stage, 0)
         started = distiller.iteration
@@ -192,6 +193,7 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
     with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
         trainer = finetune_trainer(env, dataset, distill, request.out, request.seed)
+        trainer.judge = held_out_judge(request, dataset, robot, task, threads)
         if not trainer.resume_latest():
             trim_progress(request.out, 0)
             start_from_distilled(trainer, distilled)

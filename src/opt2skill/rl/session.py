@@ -13,11 +13,13 @@ import torch
 
 from opt2skill.data.reader import Dataset
 from opt2skill.envs import ABLATIONS, ReferenceBank, TrackingEnv, evaluation_config, tracking_config
+from opt2skill.envs.config import TrackingConfig
 from opt2skill.envs.evaluation import TrackedMotion, track
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.model import load_robot
 from opt2skill.provenance import provenance
 from opt2skill.rl import checkpoint
+from opt2skill.rl.best import HeldOutJudge, JudgeConfig
 from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.policy import Policy, load_policy
 from opt2skill.rl.run import RunSpec, open_run, trim_progress
@@ -38,6 +40,8 @@ class TrainRequest:
     threads: int | None = None  # physics and torch threads; None: every core
     checkpoint_every: int = 50  # iterations
     command: str = ""
+    held_out: Path | None = None  # references of another seed: judge the actor on them, keep the best (rl.best)
+    judge: JudgeConfig = JudgeConfig()
 
     def check(self) -> None:
         if not (isinstance(self.steps, int) and self.steps >= 1):
@@ -54,6 +58,7 @@ class TrainRequest:
             raise ConfigError(f"--threads must be >= 1, got {self.threads}")
         if self.checkpoint_every < 1:
             raise ConfigError(f"--checkpoint-every must be >= 1 iteration, got {self.checkpoint_every}")
+        self.judge.check()
 
 
 def open_dataset(path: Path):
@@ -66,6 +71,21 @@ def open_dataset(path: Path):
         raise DataError(f"dataset {path} was made with a different '{robot.name}' robot file "
                         f"(hash {str(dataset.identity.get('robot_hash'))[:12]}, installed {robot.hash[:12]})")
     return dataset, robot
+
+
+def held_out_judge(request: TrainRequest, dataset, robot, tracking: TrackingConfig, threads: int) -> HeldOutJudge | None:
+    """The judge of `request.held_out` (None without one): its first `judge.n` references, which must be
+    the training task's, for the same robot, and not the training dataset itself."""
+    if request.held_out is None:
+        return None
+    held_out, held_robot = open_dataset(request.held_out)
+    if held_robot.hash != robot.hash or held_out.identity.get("task") != dataset.identity.get("task"):
+        raise DataError(f"--held-out {request.held_out} holds '{held_out.identity.get('task')}' references of "
+                        f"robot '{held_robot.name}'; training is on '{dataset.identity.get('task')}' of '{robot.name}'")
+    if Path(request.held_out).resolve() == Path(request.dataset).resolve():
+        raise ConfigError("--held-out must be references the run does not train on (another seed), not --dataset")
+    references = [held_out[i] for i in range(min(request.judge.n, len(held_out)))]
+    return HeldOutJudge(request.out, robot, references, tracking, request.judge, threads=threads)
 
 
 def set_threads(threads: int | None) -> int:
@@ -94,6 +114,7 @@ def train(request: TrainRequest, progress: bool = True) -> dict[str, Any]:
 
     with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
         trainer = Trainer(env, ppo, request.out, seed=request.seed)
+        trainer.judge = held_out_judge(request, dataset, robot, config, threads)
         if not (existed and trainer.resume_latest()):
             trim_progress(request.out, 0)
             trainer.warm_up_normalizers()

@@ -24,6 +24,7 @@ from rsl_rl.algorithms import PPO
 from opt2skill.data.atomic import dumps
 from opt2skill.envs import TrackingEnv
 from opt2skill.rl import checkpoint
+from opt2skill.rl.best import judge_actor
 from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.run import PROGRESS_FILE, trim_progress
 from opt2skill.rl.vec_env import TrackingVecEnv
@@ -56,6 +57,9 @@ class Trainer:
         # Optional `rl.anchor.ExpertAnchor` on this trainer's actor (set before resuming): told each actor
         # observation before the action (`observe`), trained after each PPO update (`learn`).
         self.anchor = None
+        # Optional `rl.best.HeldOutJudge`: judges the actor on held-out references every `every`
+        # iterations and at the end, keeping the best checkpoint.
+        self.judge = None
         torch.manual_seed(seed)
         self.venv = TrackingVecEnv(env, ppo.reward_scale or None)
         self.alg = build_algorithm(self.venv, ppo)
@@ -203,9 +207,13 @@ class Trainer:
                     bar.set_postfix_str(_postfix(figures), refresh=False)
                 due = self.iteration % schedule.checkpoint_every == 0 or (
                     time.monotonic() - last_save > 60 * schedule.checkpoint_minutes)
-                if self.run is not None and (due or self.iteration == last):
-                    self.save()
+                judged = self.judge is not None and (self.judge.due(self.iteration) or self.iteration == last)
+                if self.run is not None and (due or judged or self.iteration == last):
+                    saved = self.save()
                     last_save = time.monotonic()
+                    if judged:
+                        self._log(judge_actor(self.judge, self.alg.actor, saved, "ppo", self.iteration,
+                                              self.env_steps), writer, progress_file=False)
         except KeyboardInterrupt:
             if self.run is not None and self.iteration > 0 and not self._updating:
                 self.save()  # the networks of the last whole iteration (the rollout in flight is dropped)
@@ -215,7 +223,10 @@ class Trainer:
                 bar.close()
         return figures
 
-    def _log(self, figures: dict[str, float], writer) -> None:
+    def _log(self, figures: dict[str, float], writer, progress_file: bool = True) -> None:
+        if not progress_file:  # figures about the iteration just logged (TensorBoard only)
+            log_iteration(None, writer, self.iteration, self.env_steps, self.elapsed, figures)
+            return
         log_iteration(self.run, writer, self.iteration, self.env_steps, self.elapsed,
                       {**figures, "perf/env_steps_total": self.env_steps})
 

@@ -30,6 +30,7 @@ class EpisodeStats:
         self.episode_rewards: list[np.ndarray] = []
         self.causes = np.zeros(len(CAUSES), dtype=np.int64)
         self.unstable = 0
+        self.pushed = 0
 
     def add(self, result: StepResult) -> None:
         n = len(result.reward)
@@ -38,6 +39,7 @@ class EpisodeStats:
         for name, value in result.terms.items():
             self.term_sums[name] += float(value.sum())
         self.unstable += result.unstable
+        self.pushed += result.pushed
         if result.episodes is not None:
             self.episode_lengths.append(result.episodes.length)
             self.episode_rewards.append(result.episodes.reward)
@@ -56,6 +58,7 @@ class EpisodeStats:
         for name, count in zip(CAUSES, self.causes):
             out[f"terminations/{name}"] = float(count)
         out["terminations/unstable_worlds"] = float(self.unstable)
+        out["randomization/pushes"] = float(self.pushed)
         return out
 
 

@@ -138,6 +138,11 @@ class BatchedSim(ABC):
         """Advance all worlds one policy step towards PD targets (N, nu) (action + default pose)."""
 
     @abstractmethod
+    def push(self, worlds: np.ndarray, velocity: np.ndarray) -> None:
+        """Add `velocity` (k, 3) m/s, world frame, to the base of `worlds` (k,): an external impulse
+        on the base, felt from the next step on."""
+
+    @abstractmethod
     def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Effective Kp, Kd and torque limits (N, nu) of every world."""
 

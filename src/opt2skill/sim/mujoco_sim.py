@@ -177,6 +177,12 @@ class MujocoBatchedSim(BatchedSim):
         self._last = out
         return out
 
+    def push(self, worlds: np.ndarray, velocity: np.ndarray) -> None:
+        worlds = self._check_worlds(worlds)
+        velocity = _checked_array("push velocity", velocity, (len(worlds), 3))
+        start = self._qvel.start  # the free joint's linear velocity is in the world frame
+        self._state[worlds, start:start + 3] += velocity
+
     def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return self._nominal.gains(self._params)
 
