@@ -11,6 +11,7 @@ import pytest
 from opt2skill.data.record import FRAME_DT
 from opt2skill.envs import ReferenceBank, TrackingEnv, evaluation_config, tracking_config
 from opt2skill.envs.evaluation import track
+from opt2skill.envs.measure import Readings
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.eval.metrics import tracking_errors
 from opt2skill.expert import FeedbackExpert, pd_targets, servo_torque
@@ -173,3 +174,35 @@ def test_bad_expert_settings_get_clear_errors(robot, walk):
         ExpertConfig(lead=-1).check()
     with pytest.raises(ConfigError, match="max_joint"):
         ExpertConfig(max_joint=-0.1).check()
+
+
+def test_reading_the_observations_the_expert_labels_what_the_actor_sees_and_still_walks(robot, walk):
+    """Under Table II's noise the expert that reads the actor's own readings gives labels that are a
+    function of the observation (its targets move with the read joint positions, not the true ones),
+    is unchanged without noise, judges validity on the true state, and still tracks the walk."""
+    config = evaluation_config(tracking_config("walk"), noise=True)
+    bank = ReferenceBank.from_trajectories(robot, [walk], config.observations.end_effectors)
+    with TrackingEnv(robot, bank, config, 1, seed=0, threads=1) as env:
+        env.set_progress(1.0)  # the noise at full strength
+        reading, state = EnvExpert(env, [walk]), EnvExpert(env, [walk], ExpertConfig(reads="state"))
+        env.reset()  # the history is filled with readings at the current noise
+        assert np.abs(env.readings.joint_pos - env.state.joint_pos).max() > 0.05  # Table II: 0.0875 rad
+        assert np.abs(reading.act()[0] - state.act()[0]).max() > 0.05
+        # Readings exact but for the joint positions: the expert's target follows the read position at a
+        # gain of about 1 - K_q / Kp (DDP's joint gains are a median 16 % of the servo's)
+        m = env.m
+        offset = 0.01 * np.random.default_rng(0).choice([-1.0, 1.0], env.nu)
+        env.readings = Readings(m.joint_pos + offset, m.joint_vel, m.base_lin_vel, m.base_ang_vel, m.gravity)
+        gain = np.median((reading.act()[0] - state.act()[0]) * env.action_scale / offset)
+        assert 0.6 < gain < 1.0, gain
+        env.observations()
+        assert reading.act()[1].all()  # valid: judged on the true state
+        motion = track(env, reading, np.arange(1))[0]
+        env.noise_factor = 0.0
+        env.observations()
+        np.testing.assert_allclose(reading.act()[0], state.act()[0], atol=1e-12)
+    # measured: 434 of the walk's 600 steps through the full noise (it falls in the final standing,
+    # whose LQR gains are stiffer than DDP's); 8 of 8 held-out 14-s walks (benchmarks/expert_noise.py)
+    assert motion.steps > 300, motion.steps
+    with pytest.raises(ConfigError, match="reads"):
+        ExpertConfig(reads="truth").check()

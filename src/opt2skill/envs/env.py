@@ -17,7 +17,7 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.envs import randomization
 from opt2skill.envs.config import TrackingConfig
 from opt2skill.envs.history import StridedHistory
-from opt2skill.envs.measure import Measurement, measure
+from opt2skill.envs.measure import Measurement, Readings, measure
 from opt2skill.envs.observations import ObservationLayout, fill, layout
 from opt2skill.envs.reference import ReferenceBank
 from opt2skill.envs.rewards import StepContext, penalty_values, reward_terms, task_errors
@@ -98,6 +98,7 @@ class TrackingEnv:
         self.set_progress(0.0)
         self.m: Measurement | None = None
         self.state: SimStep | None = None  # the latest simulator outputs (privileged state, e.g. qpos, qvel)
+        self.readings: Readings | None = None  # what the latest actor observation read (noise included)
         self.reset()
 
     # ------------------------------------------------------------------ public
@@ -248,6 +249,8 @@ class TrackingEnv:
             values["projected_gravity"] = m.gravity + f * noise.gravity * z[:, 6:9]
             values["joint_vel"] = m.joint_vel + f * noise.joint_vel * z[:, 9:]
         values["joint_pos_history"] = self._q_hist_noisy.read()
+        self.readings = Readings(self._q_hist_noisy.newest().copy(), values["joint_vel"], values["base_lin_vel"],
+                                 values["base_ang_vel"], values["projected_gravity"])
         actor = fill(np.empty((self.num_envs, self.actor_dim), np.float32), self.layout.actor, values)
         return actor, critic
 

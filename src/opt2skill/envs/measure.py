@@ -35,6 +35,18 @@ class Measurement:
             getattr(self, f.name)[rows] = getattr(other, f.name)
 
 
+@dataclass
+class Readings:
+    """The proprioception the actor was given with its latest observation, noise included (equal to
+    the true values where the noise is 0): what a controller that sees what the actor sees reads."""
+
+    joint_pos: np.ndarray  # (N, nu) the newest joint-position sample of the history
+    joint_vel: np.ndarray  # (N, nu)
+    base_lin_vel: np.ndarray  # (N, 3) body frame
+    base_ang_vel: np.ndarray  # (N, 3) body frame
+    gravity: np.ndarray  # (N, 3) projected gravity, body frame (not renormalized)
+
+
 def measure(out: SimStep, z_offset: np.ndarray, ee_index: np.ndarray) -> Measurement:
     """Measurement of a step's (or a reset's) outputs; `ee_index` selects the tracked end effectors."""
     n = len(out.qpos)

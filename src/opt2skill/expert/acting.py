@@ -19,9 +19,11 @@ import numpy as np
 
 from opt2skill.data.record import FRAME_DT, Trajectory
 from opt2skill.envs import TrackingEnv
+from opt2skill.envs.measure import Readings
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.expert.feedback import FeedbackExpert, pd_targets
 from opt2skill.expert.standing import StandingLQR
+from opt2skill.geometry import quat_mul, quat_to_mat
 
 
 @dataclass(frozen=True)
@@ -36,6 +38,12 @@ class ExpertConfig:
     docs/distill.md has the measurements behind the defaults.
     """
 
+    # What the law reads. "observations": the joint positions and velocities, base velocities and tilt
+    # the actor was given with its latest observation (noise included), so that a label is a function
+    # of what the student sees: labels computed from the true state regress, under noise, to a stiffer
+    # law than the expert's (issue 13, docs/distill.md). "state": the simulator's true state. Validity
+    # is always judged on the true state. The two are the same without observation noise.
+    reads: str = "observations"
     lead: float = 0.75  # policy steps
     joint_losses: bool = True
     standing_gains: bool = True  # LQR gains of their own in standing segments (expert.standing)
@@ -45,6 +53,8 @@ class ExpertConfig:
     max_joint: float = 0.5  # rad, largest joint-position error
 
     def check(self) -> None:
+        if self.reads not in ("observations", "state"):
+            raise ConfigError(f"expert reads must be 'observations' or 'state', got '{self.reads}'")
         if not 0 <= self.lead <= 5:
             raise ConfigError(f"expert lead must be in [0, 5] policy steps, got {self.lead}")
         if self.friction_smoothing <= 0:
@@ -62,6 +72,30 @@ class ExpertConfig:
         if self.max_joint:
             ok &= np.abs(deviation[:, 6:6 + nu]).max(axis=1) <= self.max_joint
         return ok
+
+
+def as_read(qpos: np.ndarray, qvel: np.ndarray, readings: Readings) -> tuple[np.ndarray, np.ndarray]:
+    """The state (MuJoCo layout) as the readings have it: their joint positions and velocities, base
+    velocities, and the base tilted so that its projected gravity points along the read one; the base
+    position and heading (which the actor does not read) stay true."""
+    qpos, qvel = qpos.copy(), qvel.copy()
+    nu = readings.joint_pos.shape[1]
+    qpos[:, 7:7 + nu] = readings.joint_pos
+    qvel[:, 6:6 + nu] = readings.joint_vel
+    quat = qpos[:, 3:7]
+    true_g = -quat_to_mat(quat)[:, 2, :]  # R^T (0, 0, -1), R: body -> world
+    read_g = readings.gravity / np.linalg.norm(readings.gravity, axis=1, keepdims=True)
+    # R' = R Q with Q^T true_g = read_g: Q turns read_g onto true_g (about read_g x true_g)
+    axis = np.cross(read_g, true_g)
+    sin = np.linalg.norm(axis, axis=1, keepdims=True)
+    cos = np.einsum("ij,ij->i", read_g, true_g)[:, None]
+    half = 0.5 * np.arctan2(sin, cos)
+    turn = np.concatenate([np.cos(half), np.sin(half) * axis / np.maximum(sin, 1e-12)], axis=1)
+    qpos[:, 3:7] = quat_mul(quat, turn)
+    # the base velocities in the read (tilted) body frame; MuJoCo's free joint has the linear one in world axes
+    qvel[:, 0:3] = np.einsum("nij,nj->ni", quat_to_mat(qpos[:, 3:7]), readings.base_lin_vel)
+    qvel[:, 3:6] = readings.base_ang_vel
+    return qpos, qvel
 
 
 class EnvExpert:
@@ -83,17 +117,23 @@ class EnvExpert:
         self._damping, self._friction = model.dof_damping[6:].copy(), model.dof_frictionloss[6:].copy()
 
     def act(self) -> tuple[np.ndarray, np.ndarray]:
-        """(actions (N, nu), valid (N,) bool) for the current state of every world."""
-        env = self.env
+        """(actions (N, nu), valid (N,) bool) for the current state of every world (as read, see
+        `ExpertConfig.reads`, from the latest `env.observations()`)."""
+        env, cfg = self.env, self.config
         state = env.state
         qpos = state.qpos.copy()
         qpos[:, 2] -= env.sim.z_offset  # references stand on z = 0; the world stands on its terrain
-        torque, deviation = self.expert.torque_and_deviation(env.traj, env.frame * FRAME_DT, qpos, state.qvel)
-        cfg, qd = self.config, state.joint_vel
+        time = env.frame * FRAME_DT
+        torque, deviation = self.expert.torque_and_deviation(env.traj, time, qpos, state.qvel)
+        q, qd = state.joint_pos, state.joint_vel
+        if cfg.reads == "observations" and env.readings is not None and env.noise_factor > 0:
+            seen_qpos, seen_qvel = as_read(qpos, state.qvel, env.readings)
+            torque = self.expert.torque(env.traj, time, seen_qpos, seen_qvel)
+            q, qd = env.readings.joint_pos, env.readings.joint_vel
         if cfg.joint_losses:
             torque = torque + self._damping * qd + self._friction * np.tanh(qd / cfg.friction_smoothing)
         kp, kd, _ = env.sim.gains()
-        targets = pd_targets(torque, state.joint_pos + cfg.lead * env.sim.policy_dt * qd, qd, kp, kd)
+        targets = pd_targets(torque, q + cfg.lead * env.sim.policy_dt * qd, qd, kp, kd)
         return env.actions_for_targets(targets), cfg.valid(deviation, env.nu)
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
