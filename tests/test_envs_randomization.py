@@ -210,3 +210,17 @@ def test_pushes_are_off_in_the_nominal_evaluation_and_scale_with_the_curriculum(
         training_config(push_speed=-1).check()
     with pytest.raises(ConfigError, match="push_interval"):
         training_config(push_interval=(3.0, 1.0)).check()
+
+
+def test_kp_scale_softens_every_servo_of_every_world(recorded):
+    traj, _ = recorded
+    base = training_config()
+    soft = dataclasses.replace(base, actions=dataclasses.replace(base.actions, kp_scale=0.4))
+    env = make_env([traj], soft, num_envs=6, seed=2)
+    kp, kd, _ = env.sim.gains()
+    params = env.sim.params
+    np.testing.assert_allclose(kp, ROBOT.config.kp * params.kp_factor * params.motor_strength, rtol=1e-12)
+    assert np.all(params.kp_factor >= 0.4 * 0.9 - 1e-12) and np.all(params.kp_factor <= 0.4 * 1.1 + 1e-12)
+    np.testing.assert_allclose(kd, ROBOT.config.kd * params.kd_factor * params.motor_strength, rtol=1e-12)
+    with pytest.raises(ConfigError, match="kp_scale"):
+        dataclasses.replace(base, actions=dataclasses.replace(base.actions, kp_scale=0.0)).check()

@@ -177,14 +177,14 @@ def test_bad_expert_settings_get_clear_errors(robot, walk):
 
 
 def test_reading_the_observations_the_expert_labels_what_the_actor_sees_and_still_walks(robot, walk):
-    """Under Table II's noise the expert that reads the actor's own readings gives labels that are a
-    function of the observation (its targets move with the read joint positions, not the true ones),
-    is unchanged without noise, judges validity on the true state, and still tracks the walk."""
+    """Under Table II's noise the expert that reads the actor's own readings (a perfect student with
+    noisy inputs) acts on the observation (its targets move with the read joint positions, not the true
+    ones), is unchanged without noise and judges validity on the true state."""
     config = evaluation_config(tracking_config("walk"), noise=True)
     bank = ReferenceBank.from_trajectories(robot, [walk], config.observations.end_effectors)
     with TrackingEnv(robot, bank, config, 1, seed=0, threads=1) as env:
         env.set_progress(1.0)  # the noise at full strength
-        reading, state = EnvExpert(env, [walk]), EnvExpert(env, [walk], ExpertConfig(reads="state"))
+        reading, state = EnvExpert(env, [walk], ExpertConfig(reads="observations")), EnvExpert(env, [walk])
         env.reset()  # the history is filled with readings at the current noise
         assert np.abs(env.readings.joint_pos - env.state.joint_pos).max() > 0.05  # Table II: 0.0875 rad
         assert np.abs(reading.act()[0] - state.act()[0]).max() > 0.05
@@ -201,8 +201,8 @@ def test_reading_the_observations_the_expert_labels_what_the_actor_sees_and_stil
         env.noise_factor = 0.0
         env.observations()
         np.testing.assert_allclose(reading.act()[0], state.act()[0], atol=1e-12)
-    # measured: 434 of the walk's 600 steps through the full noise (it falls in the final standing,
-    # whose LQR gains are stiffer than DDP's); 8 of 8 held-out 14-s walks (benchmarks/expert_noise.py)
-    assert motion.steps > 300, motion.steps
+    # measured: 434 of the walk's 600 steps through Table II's full noise; the held-out 14-s walks are
+    # lost within 0.5-2 s (docs/distill.md, benchmarks/expert_noise.py)
+    assert motion.steps > 100, motion.steps
     with pytest.raises(ConfigError, match="reads"):
         ExpertConfig(reads="truth").check()

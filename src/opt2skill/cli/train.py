@@ -40,6 +40,10 @@ def train(
     init: str = typer.Option("scratch", "--init", help="scratch: PPO from an untrained actor; distill: distil the "
                              "optimizer's feedback expert into the actor first (dataset made with --keep-gains)."),
     distill_steps: int = typer.Option(2_000_000, "--distill-steps", help="Environment steps of distillation (--init distill)."),
+    distill_noise: float = typer.Option(0.0, "--distill-noise", help="Factor in [0, 1] on Table II's observation noise "
+                                        "the actor reads while distilling (the expert reads the true state)."),
+    kp_scale: float = typer.Option(1.0, "--kp-scale", help="Servo stiffness for this policy: the robot's Kp times "
+                                   "this, in [0.05, 2] (training, evaluation, export)."),
     held_out: Path = typer.Option(None, "--held-out", help="References of another seed: every --judge-every "
                                   "iterations the actor tracks them under Table II and noise; the best is kept "
                                   "in RUN/best (what eval and export take by default)."),
@@ -58,14 +62,16 @@ def train(
 
     request = TrainRequest(dataset=dataset, out=out, steps=steps, num_envs=num_envs, history=history,
                            ablation=ablation, seed=seed, threads=threads, checkpoint_every=checkpoint_every,
-                           command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out,
+                           command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out, kp_scale=kp_scale,
                            judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed))
     request.check()
     _terminate_as_interrupt()
     if init == "distill":
         from opt2skill.rl.distill_session import train as run_distilled
 
-        result = run_distilled(request, distill_steps, progress=not quiet)
+        from opt2skill.rl.distill_config import DistillConfig
+
+        result = run_distilled(request, distill_steps, progress=not quiet, distill=DistillConfig(noise=distill_noise))
     else:
         result = run(request, progress=not quiet)
     if result.get("already_done"):

@@ -126,7 +126,7 @@ def metadata(source: RunPolicy, run: Path) -> dict[str, Any]:
     return {
         "format": FORMAT, "format_version": FORMAT_VERSION,
         "robot": {"name": robot.name, "hash": robot.hash, "joint_names": cfg.joint_names,
-                  "default_pose": cfg.default_pose.tolist(), "kp": cfg.kp.tolist(), "kd": cfg.kd.tolist(),
+                  "default_pose": cfg.default_pose.tolist(), "kp": (cfg.kp * tracking.actions.kp_scale).tolist(), "kd": cfg.kd.tolist(),
                   "torque_limit": cfg.torque_limit.tolist(), "velocity_limit": cfg.velocity_limit.tolist(),
                   "feet": [f.name for f in cfg.feet]},
         "control": {

@@ -116,9 +116,14 @@ class ActionConfig:
 
     scale: float = 0.5  # rad per action unit
     clip: float = 10.0  # actions are clipped to [-clip, clip] before scaling (runaway samples)
+    # The servos' stiffness for this policy: the robot file's Kp times kp_scale (Kd unchanged), in
+    # training, evaluation and the exported metadata. A softer servo passes less of a joint reading's
+    # error into torque (a target that follows the read position moves the torque by Kp times it).
+    kp_scale: float = 1.0
 
     def check(self) -> None:
         _require(0 < self.scale <= 5, f"action scale must be in (0, 5] rad, got {self.scale}")
+        _require(0.05 <= self.kp_scale <= 2, f"kp_scale must be in [0.05, 2], got {self.kp_scale}")
         _require(self.clip > 0, f"action clip must be > 0, got {self.clip}")
 
 
@@ -265,8 +270,8 @@ class TrackingConfig:
             part.check()
 
 
-def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10) -> TrackingConfig:
-    """The defaults for a dataset of `task`, with an ablation and a history length applied."""
+def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10, kp_scale: float = 1.0) -> TrackingConfig:
+    """The defaults for a dataset of `task`, with an ablation, a history length and a servo stiffness applied."""
     if ablation not in ABLATIONS:
         raise ConfigError(f"ablation must be one of {', '.join(ABLATIONS)}, got '{ablation}'")
     force, torque = ABLATIONS[ablation]
@@ -279,7 +284,8 @@ def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10
         joint_torque=rewards.joint_torque if torque else dataclasses.replace(rewards.joint_torque, weight=0.0),
     )
     observations = ObservationConfig(history=history, reference_force=force, reference_torque=torque)
-    config = TrackingConfig(task=task, ablation=ablation, observations=observations, rewards=rewards)
+    config = TrackingConfig(task=task, ablation=ablation, observations=observations, rewards=rewards,
+                            actions=ActionConfig(kp_scale=kp_scale))
     config.check()
     return config
 

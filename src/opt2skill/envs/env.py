@@ -155,6 +155,7 @@ class TrackingEnv:
         rows = bank.start[traj] + frames
         qpos, qvel = bank.state(rows)
         params = randomization.sample_params(self.rng, k, self.sim.nbody, self.nu, self._randomization, self.terrains)
+        params.kp_factor *= self.config.actions.kp_scale
         targets = qpos[:, 7:]
         out = self.sim.reset(worlds, qpos, qvel, targets=targets, params=params)
         m = measure(out, self.sim.z_offset[worlds], self._ee_index)

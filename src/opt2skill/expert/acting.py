@@ -38,12 +38,12 @@ class ExpertConfig:
     docs/distill.md has the measurements behind the defaults.
     """
 
-    # What the law reads. "observations": the joint positions and velocities, base velocities and tilt
-    # the actor was given with its latest observation (noise included), so that a label is a function
-    # of what the student sees: labels computed from the true state regress, under noise, to a stiffer
-    # law than the expert's (issue 13, docs/distill.md). "state": the simulator's true state. Validity
-    # is always judged on the true state. The two are the same without observation noise.
-    reads: str = "observations"
+    # What the law reads. "state": the simulator's true state (the teacher of asymmetric DAgger).
+    # "observations": the joint positions and velocities, base velocities and tilt the actor was given
+    # with its latest observation, noise included: a perfect student with the actor's inputs, which
+    # measures what observation noise does to the law itself (benchmarks/expert_noise.py). Validity is
+    # always judged on the true state. The two are the same without observation noise.
+    reads: str = "state"
     lead: float = 0.75  # policy steps
     joint_losses: bool = True
     standing_gains: bool = True  # LQR gains of their own in standing segments (expert.standing)

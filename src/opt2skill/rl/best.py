@@ -78,7 +78,7 @@ class HeldOutJudge:
         return iteration % self.config.every == 0
 
     def judge(self, policy: Callable[[np.ndarray], np.ndarray], checkpoint: Path, stage: str, iteration: int,
-              env_steps: int) -> dict[str, Any]:
+              env_steps: int, elapsed: float = 0.0) -> dict[str, Any]:
         """Track the held-out references with `policy` (the actor saved in `checkpoint`); log the
         judgement and keep the checkpoint as the best if it beats the best so far."""
         from opt2skill.eval.rollout import rollout
@@ -88,7 +88,8 @@ class HeldOutJudge:
                            threads=self.threads)
         errors = [r.errors() for r in rollouts]
         judgement: dict[str, Any] = {
-            "stage": stage, "iteration": iteration, "env_steps": env_steps, "checkpoint": str(checkpoint),
+            "stage": stage, "iteration": iteration, "env_steps": env_steps, "elapsed": elapsed,
+            "checkpoint": str(checkpoint),
             "success": float(np.mean([not r.fell for r in rollouts])),
             "tracked": float(np.mean([r.steps / (r.reference.num_frames - 1) for r in rollouts])),
             "conditions": asdict(self.config),
@@ -113,15 +114,15 @@ class HeldOutJudge:
         self.best = judgement
 
 
-def judge_actor(judge: HeldOutJudge, actor, checkpoint: Path, stage: str, iteration: int,
-                env_steps: int) -> dict[str, float]:
+def judge_actor(judge: HeldOutJudge, actor, checkpoint: Path, stage: str, iteration: int, env_steps: int,
+                elapsed: float) -> dict[str, float]:
     """Judge a training actor (an rsl_rl MLPModel, left in the mode it was in); the logged figures."""
     from opt2skill.rl.policy import Policy
 
     training = actor.training
     policy = Policy(actor)  # a snapshot of the normalizer and the MLP (it sets the actor to eval mode)
     actor.train(training)
-    return judged_figures(judge.judge(policy, checkpoint, stage, iteration, env_steps))
+    return judged_figures(judge.judge(policy, checkpoint, stage, iteration, env_steps, elapsed))
 
 
 def judged_figures(judgement: dict[str, Any]) -> dict[str, float]:

@@ -203,7 +203,7 @@ class Distiller:
                     last_save = time.monotonic()
                     if judged:
                         self._log(judge_actor(self.judge, self.actor, saved, "distill", self.iteration,
-                                              self.env_steps), writer, progress_file=False)
+                                              self.env_steps, self.elapsed), writer, progress_file=False)
         except KeyboardInterrupt:
             if self.run is not None and self.iteration > 0:
                 self.save()  # the last whole iteration; the rollout in flight is dropped

@@ -169,7 +169,7 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     distill.check()
     dataset, robot = open_dataset(request.dataset)
     _check_gains(dataset)
-    task = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history)
+    task = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale)
     config = finetune_tracking_config(task, distill)  # the PPO stage's, recorded as the run's
     ppo = distill.finetune_ppo()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,

@@ -40,6 +40,7 @@ class TrainRequest:
     threads: int | None = None  # physics and torch threads; None: every core
     checkpoint_every: int = 50  # iterations
     command: str = ""
+    kp_scale: float = 1.0  # servo stiffness for this policy (envs.config.ActionConfig.kp_scale)
     held_out: Path | None = None  # references of another seed: judge the actor on them, keep the best (rl.best)
     judge: JudgeConfig = JudgeConfig()
 
@@ -52,6 +53,8 @@ class TrainRequest:
             raise ConfigError(f"--history must be in [0, 50] samples, got {self.history}")
         if self.ablation not in ABLATIONS:
             raise ConfigError(f"--ablation must be one of {', '.join(ABLATIONS)}, got '{self.ablation}'")
+        if not 0.05 <= self.kp_scale <= 2:
+            raise ConfigError(f"--kp-scale must be in [0.05, 2], got {self.kp_scale}")
         if self.seed < 0:
             raise ConfigError(f"--seed must be >= 0, got {self.seed}")
         if self.threads is not None and self.threads < 1:
@@ -100,7 +103,7 @@ def train(request: TrainRequest, progress: bool = True) -> dict[str, Any]:
     """Train (or resume) the run `request.out`; the last iteration's figures."""
     request.check()
     dataset, robot = open_dataset(request.dataset)
-    config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history)
+    config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale)
     ppo = PPOConfig()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,

@@ -213,7 +213,7 @@ class Trainer:
                     last_save = time.monotonic()
                     if judged:
                         self._log(judge_actor(self.judge, self.alg.actor, saved, "ppo", self.iteration,
-                                              self.env_steps), writer, progress_file=False)
+                                              self.env_steps, self.elapsed), writer, progress_file=False)
         except KeyboardInterrupt:
             if self.run is not None and self.iteration > 0 and not self._updating:
                 self.save()  # the networks of the last whole iteration (the rollout in flight is dropped)
