@@ -37,8 +37,38 @@ from opt2skill.model import load_robot
 CHANNELS = tuple(f.name for f in dataclasses.fields(NoiseConfig))
 
 
+class Filtered:
+    """The expert acting on filtered readings: a complementary filter per channel, as a robot's state
+    estimator would run. Joint positions integrate the read joint velocities and are pulled toward the
+    read positions by `gain` per step; the tilt (projected gravity) is carried by the read angular
+    rate and pulled toward the read gravity; base linear velocity is low-passed with the same gain.
+    The angular rate and joint velocities are used as read (the expert survives their noise)."""
+
+    def __init__(self, expert: EnvExpert, gain: float):
+        self.expert, self.gain, self.estimate = expert, gain, None
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        env, k = self.expert.env, self.gain
+        read, dt = env.readings, env.sim.policy_dt
+        if self.estimate is None:
+            self.estimate = dataclasses.replace(read, joint_pos=read.joint_pos.copy(), base_lin_vel=read.base_lin_vel.copy(),
+                                                gravity=read.gravity.copy())
+        else:
+            e = self.estimate
+            e.joint_pos = (1 - k) * (e.joint_pos + dt * read.joint_vel) + k * read.joint_pos
+            e.base_lin_vel = (1 - k) * e.base_lin_vel + k * read.base_lin_vel
+            g = e.gravity - dt * np.cross(read.base_ang_vel, e.gravity)  # a world vector seen from a turning body
+            e.gravity = (1 - k) * g + k * read.gravity
+            e.joint_vel, e.base_ang_vel = read.joint_vel, read.base_ang_vel
+        env.readings = self.estimate
+        try:
+            return self.expert.act()[0]
+        finally:
+            env.readings = read
+
+
 def measure(robot, references, task: str, stiffness: float, table2: bool, noise: float, channels: tuple[str, ...],
-            seed: int, threads: int) -> dict:
+            seed: int, threads: int, filter_gain: float = 1.0) -> dict:
     config = eval_config(tracking_config(task), randomize=True, noise=True)
     full = config.observations.noise
     kept = NoiseConfig(**{c: getattr(full, c) if c in channels else 0.0 for c in CHANNELS})
@@ -52,9 +82,10 @@ def measure(robot, references, task: str, stiffness: float, table2: bool, noise:
     with TrackingEnv(robot, bank, config, n, seed=seed, threads=threads) as env:
         env.set_progress(1.0)
         env.noise_factor = noise
-        motions = track(env, EnvExpert(env, references, ExpertConfig(reads="observations")), np.arange(n))
+        expert = EnvExpert(env, references, ExpertConfig(reads="observations"))
+        motions = track(env, expert if filter_gain >= 1 else Filtered(expert, filter_gain), np.arange(n))
     frames = sum(m.steps for m in motions) / sum(m.reference_frames - 1 for m in motions)
-    return {"stiffness": stiffness, "table2": table2, "noise": noise, "channels": list(channels),
+    return {"stiffness": stiffness, "table2": table2, "noise": noise, "channels": list(channels), "filter": filter_gain,
             "success": float(np.mean([not m.fell for m in motions])), "frames_tracked": float(frames)}
 
 
@@ -67,6 +98,7 @@ def main() -> None:
     parser.add_argument("--worlds", default="nominal,table2", help="nominal and/or table2")
     parser.add_argument("--channels", default="all", help=f"noisy readings: all, or some of {', '.join(CHANNELS)}; "
                         "'each' runs every channel alone")
+    parser.add_argument("--filter", default="1", help="complementary-filter gains per step, comma-separated (1: none)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("bench/expert_noise.json"))
@@ -79,17 +111,17 @@ def main() -> None:
                     [CHANNELS if args.channels == "all" else tuple(args.channels.split(","))])
     rows = []
     print(f"{machine()}; {len(references)} walks of {args.dataset}")
-    print("| Kp factor | world | noisy readings | noise factor | success | frames tracked | s |\n"
-          "| --- | --- | --- | --- | --- | --- | --- |")
+    print("| Kp factor | world | noisy readings | filter gain | noise factor | success | frames tracked | s |\n"
+          "| --- | --- | --- | --- | --- | --- | --- | --- |")
     for s in [float(x) for x in args.stiffness.split(",")]:
         for world in args.worlds.split(","):
-            for channels in channel_sets:
+            for channels, gain in [(c, float(g)) for c in channel_sets for g in args.filter.split(",")]:
                 for f in [float(x) for x in args.noise.split(",")]:
                     start = time.perf_counter()
-                    row = measure(robot, references, task, s, world == "table2", f, channels, args.seed, args.threads)
+                    row = measure(robot, references, task, s, world == "table2", f, channels, args.seed, args.threads, gain)
                     rows.append(row)
                     named = "all" if channels == CHANNELS else ", ".join(channels)
-                    print(f"| {s:g} | {'Table II' if world == 'table2' else 'nominal'} | {named} | {f:g} | "
+                    print(f"| {s:g} | {'Table II' if world == 'table2' else 'nominal'} | {named} | {gain:g} | {f:g} | "
                           f"{row['success']:.0%} | {row['frames_tracked']:.0%} | {time.perf_counter() - start:.0f} |",
                           flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
