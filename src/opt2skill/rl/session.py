@@ -4,6 +4,7 @@ directory, the environment, the trainer; resumable and logged (docs/training.md)
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,9 @@ from opt2skill.data.reader import Dataset
 from opt2skill.envs import ABLATIONS, ReferenceBank, TrackingEnv, evaluation_config, tracking_config
 from opt2skill.envs.evaluation import TrackedMotion, track
 from opt2skill.errors import ConfigError, DataError
+from opt2skill.folder_lock import folder_lock
 from opt2skill.model import load_robot
+from opt2skill.output_paths import check_output_dir
 from opt2skill.provenance import provenance
 from opt2skill.rl import checkpoint
 from opt2skill.rl.config import PPOConfig
@@ -65,7 +68,19 @@ def open_dataset(path: Path):
     if dataset.identity.get("robot_hash") != robot.hash:
         raise DataError(f"dataset {path} was made with a different '{robot.name}' robot file "
                         f"(hash {str(dataset.identity.get('robot_hash'))[:12]}, installed {robot.hash[:12]})")
+    dataset.check()  # training reads every file: name every bad one now, at once
     return dataset, robot
+
+
+def check_checkpoints(run: Path, robot, config) -> None:
+    """A run's newest checkpoints (its own and its distillation stage's) must be for this robot and
+    task: checked before a resume writes anything into the run."""
+    obs = config.observations
+    expected = checkpoint.identity(robot.name, robot.hash, config.task, config.ablation, obs.history, obs.stride)
+    for directory in (Path(run), Path(run) / checkpoint.DISTILL_STAGE_DIR):
+        path = checkpoint.latest(directory)
+        if path is not None:
+            checkpoint.check_identity(path, checkpoint.load(path), expected)
 
 
 def set_threads(threads: int | None) -> int:
@@ -76,9 +91,19 @@ def set_threads(threads: int | None) -> int:
     return n
 
 
-def train(request: TrainRequest, progress: bool = True) -> dict[str, Any]:
-    """Train (or resume) the run `request.out`; the last iteration's figures."""
+def no_announce(line: str) -> None:
+    """The default `announce`: library callers that want no output."""
+
+
+def resume_line(run: Path, iteration: int, path: Path | None, stage: str = "") -> str:
+    return f"resuming {run}{' (' + stage + ')' if stage else ''} from iteration {iteration} (checkpoint {path})"
+
+
+def train(request: TrainRequest, progress: bool = True, announce: Callable[[str], None] = no_announce) -> dict[str, Any]:
+    """Train (or resume) the run `request.out`; the last iteration's figures. `announce` is told a
+    resume (the line `resume_line` makes)."""
     request.check()
+    check_output_dir(request.out)
     dataset, robot = open_dataset(request.dataset)
     config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history)
     ppo = PPOConfig()
@@ -87,25 +112,30 @@ def train(request: TrainRequest, progress: bool = True) -> dict[str, Any]:
                    num_envs=request.num_envs, seed=request.seed)
     invocation = {"command": request.command, "steps": request.steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
-    existed = open_run(request.out, spec, invocation)
-    threads = set_threads(request.threads)
-    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
-    from torch.utils.tensorboard import SummaryWriter
+    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)  # every file read first
+    with folder_lock(request.out):
+        check_checkpoints(request.out, robot, config)
+        existed = open_run(request.out, spec, invocation)
+        threads = set_threads(request.threads)
+        from torch.utils.tensorboard import SummaryWriter
 
-    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
-        trainer = Trainer(env, ppo, request.out, seed=request.seed)
-        if not (existed and trainer.resume_latest()):
-            trim_progress(request.out, 0)
-            trainer.warm_up_normalizers()
-        if trainer.iteration >= trainer.iterations_for(request.steps):
-            return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True}
-        writer = SummaryWriter(str(Path(request.out) / "tb"), purge_step=trainer.iteration + 1, flush_secs=10)
-        try:
-            figures = trainer.train(Schedule(request.steps, request.checkpoint_every), progress=progress, writer=writer)
-        finally:
-            writer.close()
-        return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "elapsed": trainer.elapsed,
-                "checkpoint": str(checkpoint.latest(request.out)), **figures}
+        with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
+            trainer = Trainer(env, ppo, request.out, seed=request.seed)
+            if existed and trainer.resume_latest():
+                announce(resume_line(request.out, trainer.iteration, checkpoint.latest(request.out)))
+            else:
+                trim_progress(request.out, 0)
+                trainer.warm_up_normalizers()
+            if trainer.iteration >= trainer.iterations_for(request.steps):
+                return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True}
+            writer = SummaryWriter(str(Path(request.out) / "tb"), purge_step=trainer.iteration + 1, flush_secs=10)
+            try:
+                figures = trainer.train(Schedule(request.steps, request.checkpoint_every), progress=progress,
+                                        writer=writer)
+            finally:
+                writer.close()
+            return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "elapsed": trainer.elapsed,
+                    "checkpoint": str(checkpoint.latest(request.out)), **figures}
 
 
 @dataclass
