@@ -46,7 +46,7 @@ from opt2skill.rl.anchor import ExpertAnchor
 from opt2skill.rl.distill import Distiller
 from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
 from opt2skill.rl.policy import build_actor
-from opt2skill.rl.run import RunSpec, differences, open_run, trim_progress
+from opt2skill.rl.run import RunSpec, check_run, differences, open_run, trim_progress
 from opt2skill.rl.session import (TrainRequest, check_checkpoints, no_announce, open_dataset, resume_line,
                                   set_threads)
 from opt2skill.rl.trainer import Schedule, Trainer
@@ -187,10 +187,11 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     invocation = {"command": request.command, "steps": request.steps, "init": "distill", "distill_steps": distill_steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
     with folder_lock(request.out):  # one lock for both stages: RUN/distill is inside RUN
-        check_checkpoints(request.out, robot, config)
-        existed = open_run(request.out, spec, invocation)
-        if existed and checkpoint.latest(request.out) is not None and not (Path(request.out) / STAGE_DIR).is_dir():
+        existing = check_run(request.out, spec)  # the configuration first, then what the checkpoints are for
+        if existing and checkpoint.latest(request.out) is not None and not (Path(request.out) / STAGE_DIR).is_dir():
             raise ConfigError(f"{request.out} is a plain PPO run; choose another --out for --init distill")
+        check_checkpoints(request.out, robot, config)
+        open_run(request.out, spec, invocation)
         threads = set_threads(request.threads)
         distilled, resumed = None, {"distill": None, "ppo": None}  # the iteration each stage went on from
         if checkpoint.latest(request.out) is None:  # the PPO stage has not started: distil first

@@ -23,7 +23,7 @@ from opt2skill.provenance import provenance
 from opt2skill.rl import checkpoint
 from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.policy import Policy, load_policy
-from opt2skill.rl.run import RunSpec, open_run, trim_progress
+from opt2skill.rl.run import RunSpec, check_run, open_run, trim_progress
 from opt2skill.rl.trainer import Schedule, Trainer
 
 MAX_ENVS = 4096
@@ -114,6 +114,7 @@ def train(request: TrainRequest, progress: bool = True, announce: Callable[[str]
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
     bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)  # every file read first
     with folder_lock(request.out):
+        check_run(request.out, spec)  # the configuration first, then what the checkpoints are for
         check_checkpoints(request.out, robot, config)
         existed = open_run(request.out, spec, invocation)
         threads = set_threads(request.threads)
