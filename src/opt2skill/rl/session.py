@@ -112,31 +112,36 @@ def train(request: TrainRequest, progress: bool = True, announce: Callable[[str]
                    num_envs=request.num_envs, seed=request.seed)
     invocation = {"command": request.command, "steps": request.steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
+    check_run(request.out, spec)  # a resume with another configuration: said before the slow loading
     bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)  # every file read first
     with folder_lock(request.out):
-        check_run(request.out, spec)  # the configuration first, then what the checkpoints are for
         check_checkpoints(request.out, robot, config)
         existed = open_run(request.out, spec, invocation)
-        threads = set_threads(request.threads)
-        from torch.utils.tensorboard import SummaryWriter
+        return _train_ppo(request, robot, bank, config, ppo, existed, progress, announce)
 
-        with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
-            trainer = Trainer(env, ppo, request.out, seed=request.seed)
-            if existed and trainer.resume_latest():
-                announce(resume_line(request.out, trainer.iteration, checkpoint.latest(request.out)))
-            else:
-                trim_progress(request.out, 0)
-                trainer.warm_up_normalizers()
-            if trainer.iteration >= trainer.iterations_for(request.steps):
-                return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True}
-            writer = SummaryWriter(str(Path(request.out) / "tb"), purge_step=trainer.iteration + 1, flush_secs=10)
-            try:
-                figures = trainer.train(Schedule(request.steps, request.checkpoint_every), progress=progress,
-                                        writer=writer)
-            finally:
-                writer.close()
-            return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "elapsed": trainer.elapsed,
-                    "checkpoint": str(checkpoint.latest(request.out)), **figures}
+
+def _train_ppo(request: TrainRequest, robot, bank, config, ppo: PPOConfig, existed: bool, progress: bool,
+               announce: Callable[[str], None]) -> dict[str, Any]:
+    """The PPO loop of `train` on an opened run (its lock held)."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    threads = set_threads(request.threads)
+    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
+        trainer = Trainer(env, ppo, request.out, seed=request.seed)
+        if existed and trainer.resume_latest():
+            announce(resume_line(request.out, trainer.iteration, checkpoint.latest(request.out)))
+        else:
+            trim_progress(request.out, 0)
+            trainer.warm_up_normalizers()
+        if trainer.iteration >= trainer.iterations_for(request.steps):
+            return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True}
+        writer = SummaryWriter(str(Path(request.out) / "tb"), purge_step=trainer.iteration + 1, flush_secs=10)
+        try:
+            figures = trainer.train(Schedule(request.steps, request.checkpoint_every), progress=progress, writer=writer)
+        finally:
+            writer.close()
+        return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "elapsed": trainer.elapsed,
+                "checkpoint": str(checkpoint.latest(request.out)), **figures}
 
 
 @dataclass
