@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from envs_support import ROBOT, session_root, shared_dataset
 
 from opt2skill.data.record import Trajectory
@@ -32,6 +34,17 @@ def shared_run(tmp_path_factory) -> tuple[Path, Path]:
                             str(steps), "--checkpoint-every", "1", "--threads", "1", "--quiet"],
                            check=True, capture_output=True, timeout=600)
     return run, dataset
+
+
+def gliding(traj: Trajectory, distance: float) -> Trajectory:
+    """`traj` with its whole body carried `distance` m along +x over the motion: a reference that
+    travels (for the terrain sweep's machinery), whatever the motion itself is."""
+    shift = np.linspace(0.0, distance, traj.num_frames)
+    qpos, ee_pos, com = traj.qpos.copy(), traj.ee_pos.copy(), traj.com.copy()
+    qpos[:, 0] += shift
+    ee_pos[..., 0] += shift[:, None]
+    com[:, 0] += shift
+    return dataclasses.replace(traj, qpos=qpos, ee_pos=ee_pos, com=com)
 
 
 def write_dataset(root: Path, trajectories: list[Trajectory], task: str | None = None) -> Path:

@@ -12,8 +12,9 @@ import imageio
 import numpy as np
 import pytest
 from envs_support import recorded_reference
-from eval_support import CLI, shared_run, write_dataset
+from eval_support import CLI, gliding, shared_run, write_dataset
 
+from opt2skill.data.reader import Dataset
 from opt2skill.deploy.export import export_policy
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.eval.compare import compare
@@ -79,8 +80,10 @@ def test_sweep_on_a_tiny_grid(run_and_data, tmp_path):
     run, data = run_and_data
     out = tmp_path / "sweep"
     first = run / "checkpoints" / "model_00000001.pt"  # an earlier checkpoint than the newest
+    # A squat does not travel (a sweep refuses it): the same squat carried 2 m forward does.
+    travelling = write_dataset(tmp_path / "glide", [gliding(Dataset.open(data)[0], 2.0)])
     result = _cli("sweep", run, "--terrain", "stairs", "--values", "0,0.1", "--trials", "2", "--out", out, "--quiet",
-                  "--checkpoint", first)
+                  "--checkpoint", first, "--dataset", travelling)
     assert result.returncode == 0, result.stderr
     sweep = json.loads((out / "sweep.json").read_text())
     assert sweep["policy"]["iteration"] == 1

@@ -24,3 +24,7 @@ class DataError(Opt2SkillError):
 
 class SolverError(Opt2SkillError):
     """An optimizer or simulation diverged or failed to produce a usable result."""
+
+
+class DataWarning(UserWarning):
+    """Something in the input was skipped or repaired; the work goes on (the CLI prints one line)."""

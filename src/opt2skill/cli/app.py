@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 from pathlib import Path
 
 import typer
@@ -10,7 +11,7 @@ import typer
 from opt2skill.cli import data, render, robot, train
 from opt2skill.cli import eval as evaluation
 from opt2skill.cli.console import err_console
-from opt2skill.errors import Opt2SkillError
+from opt2skill.errors import DataWarning, Opt2SkillError
 
 app = typer.Typer(
     help="Opt2Skill: trajectory optimization to robust humanoid skills.",
@@ -48,7 +49,25 @@ def demo(
                           workers=workers, fps=fps))
 
 
+def _show_data_warnings() -> None:
+    """DataWarnings (a skipped file, a lock taken over) as one line each, like errors."""
+    default = warnings.showwarning
+    if getattr(default, "shows_data_warnings", False):  # installed already (main called again in-process)
+        return
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, DataWarning):
+            err_console.print(f"[bold yellow]warning:[/] {message}", highlight=False, soft_wrap=True)
+        else:
+            default(message, category, filename, lineno, file, line)
+
+    show.shows_data_warnings = True
+    warnings.showwarning = show
+    warnings.simplefilter("always", DataWarning)
+
+
 def main() -> None:
+    _show_data_warnings()
     try:
         app()
     except Opt2SkillError as exc:

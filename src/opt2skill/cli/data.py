@@ -10,7 +10,9 @@ from pathlib import Path
 import typer
 
 from opt2skill.cli.console import console
+from opt2skill.cli.option_help import limit_help, set_help
 from opt2skill.errors import ConfigError
+from opt2skill.output_paths import check_output_file
 
 app = typer.Typer()
 
@@ -49,8 +51,8 @@ def generate(
     robot: str = typer.Option("digit", help="Built-in robot name, or path to a robot.yaml."),
     ray: bool = typer.Option(False, "--ray", help="Run each trajectory as a Ray task."),
     address: str = typer.Option(None, help="Ray cluster address (with --ray); default: start a local instance."),
-    set_: list[str] = typer.Option([], "--set", help="Sampling range: name=lo:hi or name=value (repeatable)."),
-    limit: list[str] = typer.Option([], "--limit", help="Validation limit or replay setting: name=value (repeatable)."),
+    set_: list[str] = typer.Option([], "--set", help=set_help()),
+    limit: list[str] = typer.Option([], "--limit", help=limit_help()),
     keep_gains: bool = typer.Option(False, "--keep-gains", help="Store the solver's feedback gains (float32) with the knots."),
     retry_failed: bool = typer.Option(False, "--retry-failed", help="Solve again the indices whose solve failed."),
     timeout: float = typer.Option(None, help="Seconds allowed per trajectory (default: no limit)."),
@@ -72,6 +74,10 @@ def generate(
     )
     summary = run(request, progress=not quiet)
     print_generation(summary, request.out)
+    if summary["requested"] > n:  # a smaller --n removes nothing: say so rather than ignore it
+        console.print(f"note: {request.out} already holds indices up to {summary['requested'] - 1}; --n {n} is "
+                      f"smaller, so nothing was removed (the dataset keeps all {summary['requested']}; use another "
+                      "--out for a smaller one)", highlight=False, soft_wrap=True)
 
 
 @app.command()
@@ -79,7 +85,7 @@ def validate(
     directory: Path = typer.Argument(..., help="Dataset directory."),
     workers: int = typer.Option(0, min=0, help="Parallel processes (0: every CPU)."),
     robot: str = typer.Option(None, help="Robot name or robot.yaml path (default: the dataset's robot)."),
-    limit: list[str] = typer.Option([], "--limit", help="Judge with another limit: name=value (repeatable)."),
+    limit: list[str] = typer.Option([], "--limit", help=limit_help("Judge with another limit")),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Recompute every trajectory's validation from the stored data and compare with the stored figures."""
@@ -90,6 +96,8 @@ def validate(
     report = revalidate(directory, workers=workers or (os.cpu_count() or 1), robot=robot,
                         limits=_pairs(limit, "--limit", "name=value"), progress=not quiet)
     print_revalidation(report, directory)
+    if report.bad_files is not None:
+        raise report.bad_files.error()
     if report.disagreements:
         raise typer.Exit(1)
 
@@ -98,7 +106,7 @@ def validate(
 def inspect(
     directory: Path = typer.Argument(..., help="Dataset directory."),
     index: int = typer.Option(None, help="Trajectory index (as generated); default: the first stored."),
-    out: Path = typer.Option(None, help="PNG file (default: DIR/inspect_INDEX.png)."),
+    out: Path = typer.Option(None, help="PNG file, or a folder for inspect_INDEX.png (default: DIR/inspect_INDEX.png)."),
     rejected: bool = typer.Option(False, "--rejected", help="Look among the rejected trajectories."),
 ) -> None:
     """Plot one trajectory: base and foot paths, heights, joint torques, contact forces and schedule."""
@@ -111,7 +119,9 @@ def inspect(
         raise ConfigError(f"{directory} has no {'rejected' if rejected else 'accepted'} trajectories")
     position = 0 if index is None else ds.position(index)
     index = int(ds.indices[position])
-    path = out or Path(directory) / f"inspect_{index:06d}.png"
+    name = f"inspect_{index:06d}.png"
+    path = Path(out) / name if out is not None and Path(out).is_dir() else (out or Path(directory) / name)
+    check_output_file(path, suffix=".png")
     from opt2skill.robots import find_robot_config
 
     traj = ds[position]

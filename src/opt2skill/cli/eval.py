@@ -11,6 +11,8 @@ from rich.table import Table
 
 from opt2skill.cli.console import console
 from opt2skill.errors import ConfigError
+from opt2skill.folder_lock import folder_lock
+from opt2skill.output_paths import check_output_dir, check_output_file
 
 app = typer.Typer()
 
@@ -85,21 +87,23 @@ def eval_command(
     if plots < 0:
         raise ConfigError(f"--plots must be >= 0, got {plots}")
     spec = read_spec(run)  # a clear error for a directory that is not a run, before the slow imports
-    from opt2skill.eval.evaluate import EvalRequest, evaluate
+    from opt2skill.eval.evaluate import EvalRequest, evaluate, load_run_policy
     from opt2skill.eval.plots import plot_tracking
 
     request = EvalRequest(run=run, dataset=dataset, n=n, split=split, indices=_indices(indices), randomize=randomize,
                           noise=noise, seed=seed, checkpoint=checkpoint, threads=threads)
-    out = out or request.default_out(spec)
-    report, rollouts = evaluate(request, progress=not quiet)
-    paths = list(report.write(out))
-    from opt2skill.robots import find_robot_config
+    out = check_output_dir(out or request.default_out(spec))
+    policy = load_run_policy(run, checkpoint)  # the checkpoint checked before anything is written
+    with folder_lock(out):
+        report, rollouts = evaluate(request, progress=not quiet, run=policy)
+        paths = list(report.write(out))
+        from opt2skill.robots import find_robot_config
 
-    config = find_robot_config(report.policy.get("robot", "digit")) if rollouts else None
-    for r, result in list(zip(rollouts or [], report.results))[:plots]:
-        paths.append(plot_tracking(r.reference, r.tracked, Path(out) / "plots" / f"track_{result.index:06d}.png",
-                                   title=f"{report.title()}, reference #{result.index} ({result.cause})",
-                                   robot_config=config))
+        config = find_robot_config(report.policy.get("robot", "digit")) if rollouts else None
+        for r, result in list(zip(rollouts or [], report.results))[:plots]:
+            paths.append(plot_tracking(r.reference, r.tracked, Path(out) / "plots" / f"track_{result.index:06d}.png",
+                                       title=f"{report.title()}, reference #{result.index} ({result.cause})",
+                                       robot_config=config))
     print_report(report, paths)
 
 
@@ -110,8 +114,7 @@ def export(
     checkpoint: Path = CHECKPOINT,
 ) -> None:
     """Write the actor as ONNX (normalization folded in) with the metadata a robot-side program needs."""
-    if out.suffix != ".onnx":  # before the slow imports
-        raise ConfigError(f"--out must name a .onnx file, got {out}")
+    check_output_file(out, suffix=".onnx")  # before the slow imports
     from opt2skill.deploy.export import export_policy
 
     path, meta = export_policy(run, out, checkpoint)
@@ -140,10 +143,12 @@ def deploy_sim(
     from opt2skill.deploy.sim_to_sim import deploy_sim as run_player
 
     config = PlayerConfig(physics_dt=physics_dt, latency=latency, noise=noise, seed=seed)
-    report, _ = run_player(policy, dataset, n=n, split=split, indices=_indices(indices), config=config,
-                           progress=not quiet)
-    default = policy.with_suffix("").parent / f"{policy.stem}-deploy-sim-{dataset.name}"
-    print_report(report, report.write(out or default))
+    out = check_output_dir(out or policy.with_suffix("").parent / f"{policy.stem}-deploy-sim-{dataset.name}")
+    with folder_lock(out):
+        report, _ = run_player(policy, dataset, n=n, split=split, indices=_indices(indices), config=config,
+                               progress=not quiet)
+        paths = report.write(out)
+    print_report(report, paths)
 
 
 @app.command()
@@ -164,8 +169,11 @@ def compare(
     from opt2skill.eval.compare import compare as run_compare
     from opt2skill.eval.report import TABLE_III, TABLE_IV, header, label
 
-    result = run_compare(runs, dataset=dataset, n=n, split=split, indices=_indices(indices), randomize=randomize,
-                         noise=noise, seed=seed, threads=threads, progress=not quiet)
+    out = check_output_dir(out or Path(runs[0]) / "eval" / "compare")
+    with folder_lock(out):
+        result = run_compare(runs, dataset=dataset, n=n, split=split, indices=_indices(indices), randomize=randomize,
+                             noise=noise, seed=seed, threads=threads, progress=not quiet)
+        written = result.write(out)
     console.print(f"references: {result.references.note}")
     metrics = (*TABLE_III, *TABLE_IV)
     table_rows = result.rows()
@@ -177,7 +185,7 @@ def compare(
     p_rows = result.p_rows()
     console.print(metric_table("Wilcoxon signed-rank p-values (two-sided, paired by reference)", [r[0] for r in p_rows],
                                [(label(m), [r[1 + i] for r in p_rows]) for i, m in enumerate(metrics)]))
-    for path in result.write(out or Path(runs[0]) / "eval" / "compare"):
+    for path in written:
         console.print(f"wrote {path}")
 
 
@@ -204,9 +212,7 @@ def sweep(
     quiet: bool = QUIET,
 ) -> None:
     """Success rate on stairs or slopes of growing difficulty (the paper's Fig. 3): table and plot."""
-    import numpy as np
-
-    from opt2skill.eval.sweep import SweepSettings, choose_reference, default_values, run_sweep
+    from opt2skill.eval.sweep import SweepSettings, check_reaches_terrain, choose_reference, default_values
 
     if values:
         try:
@@ -218,23 +224,36 @@ def sweep(
     settings = SweepSettings(terrain=terrain, values=grid, trials=trials, yaw_range=yaw_range, start=start,
                              step_length=step_length, n_steps=n_steps, tolerance=tolerance, seed=seed)
     settings.check()
-    from opt2skill.data.atomic import atomic_path, write_json
     from opt2skill.data.reader import Dataset
     from opt2skill.eval.evaluate import load_run_policy, training_fingerprints
-    from opt2skill.eval.plots import plot_success
     from opt2skill.eval.references import check_metric_fields
 
+    out = check_output_dir(out or Path(run) / "eval" / f"sweep-{terrain}")
     source = load_run_policy(run, checkpoint)
     ds = Dataset.open(dataset or source.spec.dataset)
-    check_metric_fields(ds, source.spec.tracking.task)
-    position = choose_reference(ds, training_fingerprints(source.spec), index)
+    position, relation = choose_reference(ds, training_fingerprints(source.spec), index)
+    check_metric_fields(ds, source.spec.tracking.task, position)
     reference = ds[position]
     params = ", ".join(f"{k}={v:.3g}" for k, v in reference.params.items())
     info = {"dataset": str(Path(ds.root).resolve()), "index": int(ds.indices[position]), "params": reference.params,
-            "description": f"#{int(ds.indices[position])} of {Path(ds.root).resolve()} ({params}), {reference.duration:.1f} s"}
+            "description": f"#{int(ds.indices[position])} of {Path(ds.root).resolve()} ({params}), "
+                           f"{reference.duration:.1f} s, {relation}"}
+    check_reaches_terrain(reference, settings, info["description"])  # before the slow part
+    console.print(f"reference: {info['description']}", highlight=False, soft_wrap=True)
+    with folder_lock(out):
+        _run_sweep(source, reference, info, settings, out, video, threads, quiet)
+
+
+def _run_sweep(source, reference, info, settings, out: Path, video: bool, threads, quiet: bool) -> None:
+    """The sweep's trials, then its outputs in `out` (held locked)."""
+    import numpy as np
+
+    from opt2skill.data.atomic import atomic_path, write_json
+    from opt2skill.eval.plots import plot_success
+    from opt2skill.eval.sweep import run_sweep
+
+    terrain, trials, yaw_range = settings.terrain, settings.trials, settings.yaw_range
     result, rollouts = run_sweep(source, reference, info, settings, threads=threads, progress=not quiet)
-    out = out or Path(run) / "eval" / f"sweep-{terrain}"
-    out.mkdir(parents=True, exist_ok=True)
     written = [out / "sweep.json", out / "sweep.md"]
     if video:
         from opt2skill.eval.render import render_video
@@ -249,7 +268,6 @@ def sweep(
     xs = np.array(settings.values) * (100 if terrain == "stairs" else 1)
     plot = plot_success(xs, result.rates(), out / "sweep.png", "step height (cm)" if terrain == "stairs" else "slope (deg)",
                         f"{terrain}: {trials} trials per setting", label=source.info["name"])
-    console.print(f"reference: {info['description']}")
     table = Table(title=f"{terrain} sweep: success rate ({trials} trials, yaw in +-{yaw_range:g} deg)", title_justify="left")
     for col in ("setting", "success", "falls", "mean progress"):
         table.add_column(col, justify="right")

@@ -9,6 +9,7 @@ import typer
 
 from opt2skill.cli.console import console
 from opt2skill.errors import ConfigError, DataError
+from opt2skill.output_paths import check_output_file
 
 app = typer.Typer()
 
@@ -32,6 +33,8 @@ def render(
     from opt2skill.eval.render import render_video
     from opt2skill.model import load_robot
 
+    if out is not None:
+        check_output_file(out, suffix=".mp4")  # before the rollout and the rendering
     if (source / "run.json").is_file():
         _render_run(source, index, out, fps, dataset, checkpoint)
         return

@@ -25,6 +25,10 @@ def _terminate_as_interrupt() -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
+def _say(line: str) -> None:
+    console.print(line, highlight=False, soft_wrap=True)
+
+
 @app.command()
 def train(
     dataset: Path = typer.Option(..., "--dataset", help="Reference dataset directory (opt2skill generate)."),
@@ -71,9 +75,10 @@ def train(
 
         from opt2skill.rl.distill_config import DistillConfig
 
-        result = run_distilled(request, distill_steps, progress=not quiet, distill=DistillConfig(noise=distill_noise))
+        result = run_distilled(request, distill_steps, progress=not quiet, distill=DistillConfig(noise=distill_noise),
+                               announce=_say)
     else:
-        result = run(request, progress=not quiet)
+        result = run(request, progress=not quiet, announce=_say)
     if result.get("already_done"):
         console.print(f"{out}: already trained to {result['env_steps']} environment steps (iteration "
                       f"{result['iteration']}); raise --steps to train further", soft_wrap=True)

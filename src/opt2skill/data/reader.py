@@ -19,10 +19,11 @@ from typing import Any
 import numpy as np
 
 from opt2skill.data import frame_table as cache
+from opt2skill.data.file_check import BadFiles, scan
 from opt2skill.data.frame_table import FrameTable
 from opt2skill.data.record import FRAME_FIELDS, Trajectory
 from opt2skill.data.store import ACCEPTED, SUMMARY, DatasetStore, read_header, read_json
-from opt2skill.data.trajfile import TrajectoryMeta, read_frames, read_meta, read_trajectory
+from opt2skill.data.trajfile import TrajectoryMeta, read_frames, read_trajectory
 from opt2skill.errors import DataError
 
 
@@ -58,8 +59,15 @@ class Dataset:
             raise IndexError(f"trajectory {i} out of range: the dataset {self.root} has {len(self)}")
         return self.files[i]
 
+    def _bad(self, problems: list[str]) -> DataError:
+        return BadFiles(self.root, self.header, problems).error()
+
     def __getitem__(self, i: int) -> Trajectory:
-        return read_trajectory(self._path(i))
+        self.meta(i)  # the file is sound (its name, its dataset)
+        try:
+            return read_trajectory(self._path(i))
+        except DataError as exc:  # unreadable arrays, NaN or infinity
+            raise self._bad([str(exc)]) from None
 
     def __iter__(self) -> Iterator[Trajectory]:
         return (self[i] for i in range(len(self)))
@@ -72,14 +80,47 @@ class Dataset:
         return int(hits[0])
 
     def meta(self, i: int) -> TrajectoryMeta:
+        """Trajectory i's attributes; a DataError with the recovery advice if its file is bad."""
         i = i % len(self) if len(self) else i
         if i not in self._meta:
-            self._meta[i] = read_meta(self._path(i))
+            self.check([i])
         return self._meta[i]
+
+    def check(self, positions: Sequence[int] | None = None) -> None:
+        """Check the files of `positions` (all by default): one DataError naming every bad one."""
+        wanted = range(len(self)) if positions is None else [int(p) for p in positions]
+        paths = {}
+        for p in wanted:
+            path = self._path(p)  # IndexError when out of range
+            paths[p % len(self)] = path
+        todo = {p: path for p, path in paths.items() if p not in self._meta}
+        good, bad = scan(list(todo.values()), self.identity)
+        if bad:
+            raise self._bad(bad)
+        self._meta.update({p: good[path] for p, path in todo.items()})
+
+    def sound(self, positions: Sequence[int]) -> list[int]:
+        """Those of `positions` whose files are sound (the others are skipped)."""
+        kept = []
+        for p in positions:
+            try:
+                self.meta(int(p))
+            except DataError:
+                continue
+            kept.append(int(p))
+        return kept
 
     def frames(self, i: int, fields: Sequence[str], start: int = 0, stop: int | None = None) -> dict[str, np.ndarray]:
         """Some fields of some frames of one trajectory, read from disk."""
-        return read_frames(self._path(i), tuple(fields), frames=slice(start, stop))
+        fields = tuple(fields)
+        unknown = [f for f in fields if f not in FRAME_FIELDS]
+        if unknown:
+            raise DataError(f"unknown frame fields {unknown}; fields: {', '.join(FRAME_FIELDS)}")
+        self.meta(i)
+        try:
+            return read_frames(self._path(i), fields, frames=slice(start, stop))
+        except DataError as exc:
+            raise self._bad([str(exc)]) from None
 
     def frame_table(
         self,
@@ -102,8 +143,7 @@ class Dataset:
         positions = np.arange(len(self)) if subset is None else np.asarray(subset, dtype=np.int64)
         if len(positions) == 0:
             raise DataError(f"no trajectories to load from {self.root}")
-        for p in positions:
-            self._path(int(p))
+        self.check(positions)  # every bad file named at once, before any loading
         if use_cache:
             files = [self._path(int(p)) for p in positions]
             where = self.root / "cache" / f"frames_{cache.key(fields, dtype, files)}"
@@ -125,7 +165,10 @@ class Dataset:
 
             iterator = tqdm(iterator, total=len(positions), desc="loading frames", unit="traj")
         for t, p in iterator:
-            chunk = read_frames(self._path(int(p)), fields)
+            try:
+                chunk = read_frames(self._path(int(p)), fields)
+            except DataError as exc:  # unreadable arrays, NaN or infinity
+                raise self._bad([str(exc)]) from None
             rows = slice(start[t], start[t] + length[t])
             for name, value in chunk.items():
                 if value.shape[1:] != arrays[name].shape[1:] or len(value) != length[t]:

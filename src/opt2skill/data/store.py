@@ -17,17 +17,17 @@ the same command skips every index already recorded.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
-from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from opt2skill.data.atomic import remove_temporaries, write_json
+from opt2skill.data.file_check import BadFiles, record_files, scan
 from opt2skill.data.record import Trajectory
-from opt2skill.data.trajfile import TrajectoryMeta, read_meta, write_trajectory
+from opt2skill.data.trajfile import TrajectoryMeta, write_trajectory
 from opt2skill.errors import DataError
+from opt2skill.folder_lock import LOCK_FILE, folder_lock
 
 DATASET_FORMAT = "opt2skill-dataset"
 DATASET_FORMAT_VERSION = 1
@@ -126,16 +126,9 @@ class DatasetStore:
     def path(self, status: str, index: int) -> Path:
         return self.root / _DIRS[status] / file_name(index, ".json" if status == FAILED else ".h5")
 
-    @contextlib.contextmanager
-    def lock(self) -> Iterator[None]:
-        """Exclusive write access; released by the OS if the process dies."""
-        self.root.mkdir(parents=True, exist_ok=True)
-        with open(self.root / ".lock", "w") as fd:
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                raise DataError(f"another process is writing {self.root}; wait for it or choose another --out") from None
-            yield
+    def lock(self) -> contextlib.AbstractContextManager[None]:
+        """Exclusive write access (opt2skill.folder_lock); released by the OS if the process dies."""
+        return folder_lock(self.root)
 
     def prepare(self, identity: dict[str, Any], run: dict[str, Any]) -> tuple[dict[str, Any], dict[int, Outcome]]:
         """Create the header, or check that an existing dataset has the same identity; log the run.
@@ -143,7 +136,8 @@ class DatasetStore:
         Returns the header and the outcomes already recorded.
 
         Call with the lock held. A different task, robot, seed, parameter range or validation
-        limit is an error naming each difference.
+        limit is an error naming each difference; so are bad record files (all of them at once).
+        Nothing is written before these checks pass.
         """
         identity = json.loads(json.dumps(identity))  # the form it takes on disk
         header_path = self.root / HEADER
@@ -155,37 +149,44 @@ class DatasetStore:
                     f"{self.root} holds a different dataset ({'; '.join(diffs)}); use the same settings to "
                     "resume it, or another --out"
                 )
-        elif any(p.name != ".lock" for p in self.root.iterdir()):
+        elif any(p.name != LOCK_FILE for p in self.root.iterdir()):
             raise DataError(f"{self.root} is not empty and not an opt2skill dataset; choose another --out")
         else:
             header = {"format": DATASET_FORMAT, "format_version": DATASET_FORMAT_VERSION, "identity": identity, "runs": []}
+        outcomes = self.outcomes(header)
         header["runs"] = [*header.get("runs", []), run]
         write_json(header_path, header)  # first, so that a directory with our subfolders is always ours
         for sub in _DIRS.values():
             (self.root / sub).mkdir(exist_ok=True)
         remove_temporaries(self.root)
-        outcomes = self.outcomes()
         for outcome in outcomes.values():  # a retry killed between its write and the old record's removal
             self._remove_others(outcome)
         return header, outcomes
 
-    def _scan(self) -> list[Outcome]:
-        found = []
+    def _scan(self, identity: dict[str, Any]) -> tuple[list[Outcome], list[str]]:
+        found, bad = [], []
         for status, sub in _DIRS.items():
             directory = self.root / sub
-            if not directory.is_dir():
-                continue
-            for path in sorted(directory.iterdir()):
-                if status == FAILED and path.suffix == ".json":
-                    found.append(self._read_failure(path))
-                elif status != FAILED and path.suffix == ".h5":
-                    found.append(Outcome.from_meta(read_meta(path), status))
-        return found
+            if status == FAILED:
+                for path in record_files(directory, ".json"):
+                    try:
+                        found.append(self._read_failure(path))
+                    except DataError as exc:
+                        bad.append(str(exc))
+            else:
+                metas, problems = scan(record_files(directory, ".h5"), identity)
+                found += [Outcome.from_meta(meta, status) for meta in metas.values()]
+                bad += problems
+        return found, bad
 
-    def outcomes(self) -> dict[int, Outcome]:
-        """Every recorded index with its outcome (accepted over rejected over failed if both exist)."""
+    def outcomes(self, header: dict[str, Any]) -> dict[int, Outcome]:
+        """Every recorded index with its outcome (accepted over rejected over failed if both exist);
+        a DataError listing every bad record file of the dataset of `header`."""
+        found, bad = self._scan(header["identity"])
+        if bad:
+            raise BadFiles(self.root, header, bad).error()
         best: dict[int, Outcome] = {}
-        for outcome in self._scan():
+        for outcome in found:
             previous = best.get(outcome.index)
             if previous is None or _RANK[outcome.status] < _RANK[previous.status]:
                 best[outcome.index] = outcome
@@ -194,9 +195,12 @@ class DatasetStore:
     def _read_failure(self, path: Path) -> Outcome:
         raw = read_json(path, "failure record")
         try:
-            return Outcome(**{k: raw[k] for k in Outcome.__dataclass_fields__ if k in raw})
+            outcome = Outcome(**{k: raw[k] for k in Outcome.__dataclass_fields__ if k in raw})
         except TypeError as exc:
             raise DataError(f"{path} is not a failure record ({exc})") from None
+        if outcome.index != int(path.stem):
+            raise DataError(f"{path} records index {outcome.index}, not {int(path.stem)} (a copied or renamed file)")
+        return outcome
 
     def write_trajectory(self, outcome: Outcome, traj: Trajectory, drop_knots: tuple[str, ...] = ()) -> Path:
         path = self.path(outcome.status, outcome.index)
@@ -219,5 +223,5 @@ class DatasetStore:
         write_json(self.root / SUMMARY, summary)
 
     def files(self, status: str = ACCEPTED) -> list[Path]:
-        directory = self.root / _DIRS[status]
-        return sorted(directory.glob("*.h5")) if directory.is_dir() else []
+        """The trajectory files of `status`, by index (other files skipped with a warning)."""
+        return record_files(self.root / _DIRS[status], ".h5")

@@ -175,6 +175,14 @@ def _read(ds: h5py.Dataset, sl: slice = slice(None)) -> np.ndarray:
         raise DataError(f"{ds.file.filename}:{ds.name} cannot be read ({exc}); the file is corrupt") from None
 
 
+def _finite(ds: h5py.Dataset, value: np.ndarray) -> np.ndarray:
+    """A frame field must hold numbers: NaN or infinity in a reference poisons every reader."""
+    if value.dtype.kind == "f" and not np.isfinite(value).all():
+        frame = int(np.argwhere(~np.isfinite(value))[0][0]) if value.ndim else 0
+        raise DataError(f"{ds.file.filename}:{ds.name} holds NaN or infinity (first at row {frame})")
+    return value
+
+
 def read_meta(path: str | Path, group: str | None = None) -> TrajectoryMeta:
     with open_file(path) as f:
         g = _only_group(f, group)
@@ -197,14 +205,14 @@ def read_frames(
         raise DataError(f"unknown frame fields {unknown}; fields: {', '.join(FRAME_FIELDS)}")
     with open_file(path) as f:
         g = _only_group(f, group)
-        return {name: _read(_dataset(g, name), frames) for name in fields}
+        return {name: _finite(ds, _read(ds, frames)) for name in fields for ds in (_dataset(g, name),)}
 
 
 def read_trajectory(path: str | Path, group: str | None = None, *, knots: bool = True) -> Trajectory:
     with open_file(path) as f:
         g = _only_group(f, group)
         a = _attrs(g)
-        arrays = {name: _read(_dataset(g, name)) for name in FRAME_FIELDS}
+        arrays = {name: _finite(ds, _read(ds)) for name in FRAME_FIELDS for ds in (_dataset(g, name),)}
         n = len(arrays["time"])
         bad = [name for name, value in arrays.items() if value.ndim == 0 or len(value) != n]
         if bad:

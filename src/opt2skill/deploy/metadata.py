@@ -151,6 +151,12 @@ def read_metadata(path: str | Path) -> PolicyMetadata:
     inputs = {i.name: [d.dim_value or d.dim_param for d in i.type.tensor_type.shape.dim] for i in model.graph.input}
     if INPUT not in inputs or inputs[INPUT][-1] != meta.obs_dim:
         raise DataError(f"{path}: the network's input '{INPUT}' does not take the {meta.obs_dim} observations its metadata describes")
+    outputs = [[d.dim_value or d.dim_param for d in o.type.tensor_type.shape.dim] for o in model.graph.output]
+    if len(outputs) != 1 or not outputs[0] or not (outputs[0][-1] == meta.nu or isinstance(outputs[0][-1], str)):
+        # (a str: a size the file leaves open; the player runs the network once to check it)
+        shown = [shape[-1] if shape else "?" for shape in outputs]
+        raise DataError(f"{path}: the network outputs {shown} values; its metadata describes {meta.nu} actions "
+                        "(one per joint)")
     return meta
 
 

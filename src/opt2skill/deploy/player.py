@@ -84,6 +84,7 @@ class Player:
         options = ort.SessionOptions()
         options.intra_op_num_threads = 1
         self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
+        self._check_network()
         self.model = self.robot.compile(self.robot.mj_spec())
         self.model.opt.timestep = config.physics_dt
         self.kp, self.kd, self.limit = meta.array("kp"), meta.array("kd"), meta.array("torque_limit")
@@ -98,6 +99,19 @@ class Player:
         self.observation = ActorObservation(meta)
         self.terminations = meta.task["terminations"]
         self.rng = np.random.default_rng(config.seed)
+
+    def _check_network(self) -> None:
+        """One evaluation before any playback: the network must map the metadata's observation to one
+        action per joint (a file's declared shapes can leave sizes open)."""
+        try:
+            outputs = self.session.run(None, {INPUT: np.zeros((1, self.meta.obs_dim), np.float32)})
+        except Exception as exc:  # onnxruntime raises its own kinds on a shape mismatch
+            raise DataError(f"{self.path}: the network does not run on the {self.meta.obs_dim} observations its "
+                            f"metadata describes ({type(exc).__name__})") from None
+        shape = tuple(np.shape(outputs[0]))
+        if len(outputs) != 1 or shape != (1, self.meta.nu):
+            raise DataError(f"{self.path}: the network outputs shape {shape} for one observation; its metadata "
+                            f"describes {self.meta.nu} actions (one per joint)")
 
     def _set_servos(self) -> None:
         """The servos of the metadata: u = clip(kp (target - q) - kd qd, +-limit) at every physics step."""

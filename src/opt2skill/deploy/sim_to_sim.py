@@ -26,11 +26,11 @@ def deploy_sim(onnx_path: Path, dataset_dir: Path, n: int = 20, split: str = "he
     player = Player(onnx_path, config)
     meta = player.meta
     dataset = Dataset.open(dataset_dir)
-    check_metric_fields(dataset, meta.task["name"])
     if dataset.identity.get("robot_hash") not in (None, player.robot.hash):
         raise DataError(f"dataset {dataset_dir} was made for another robot file than the policy {onnx_path}")
     refs = select_references(dataset, meta.training["reference_fingerprints"], n, split, list(indices),
                              what=f"the policy {onnx_path}")
+    check_metric_fields(dataset, meta.task["name"], refs.positions[0])
     references = [dataset[p] for p in refs.positions]
     from tqdm import tqdm
 

@@ -21,7 +21,7 @@ from opt2skill.data.reader import Dataset
 from opt2skill.envs import evaluation_config, layout
 from opt2skill.envs.config import TrackingConfig
 from opt2skill.errors import ConfigError, DataError
-from opt2skill.eval.references import ReferenceSet, check_metric_fields, dataset_fingerprints, select_references
+from opt2skill.eval.references import ReferenceSet, check_metric_fields, position_fingerprint, select_references
 from opt2skill.eval.report import EvalReport, TrajectoryResult, read_report
 from opt2skill.eval.rollout import Rollout, planned_steps, rollout
 from opt2skill.model import load_robot
@@ -102,24 +102,25 @@ def load_run_policy(run: Path, checkpoint: Path | None = None) -> RunPolicy:
 
 def training_fingerprints(spec: RunSpec) -> list[str] | None:
     """Fingerprints of the references a run trained on: its dataset's first `spec.trajectories`
-    accepted trajectories (None when that dataset is gone or was changed since)."""
+    accepted trajectories (None when that dataset is gone or was changed since). A file that has
+    gone bad since is left out: only a reference with its very parameters could be misjudged."""
     try:
         dataset = Dataset.open(spec.dataset)
     except DataError:
         return None
     if dataset.identity != spec.dataset_identity or len(dataset) < spec.trajectories:
         return None
-    return dataset_fingerprints(dataset, spec.trajectories)
+    return [position_fingerprint(dataset, p) for p in dataset.sound(range(spec.trajectories))]
 
 
 def open_references(request: EvalRequest, run: RunPolicy) -> tuple[Dataset, ReferenceSet]:
     dataset = Dataset.open(request.dataset or run.spec.dataset)
-    check_metric_fields(dataset, run.spec.tracking.task)
     if dataset.identity.get("robot_hash") not in (None, run.robot.hash):
         raise DataError(f"dataset {dataset.root} was made for another '{dataset.identity.get('robot')}' robot file "
                         f"than run {request.run} (hash {str(dataset.identity.get('robot_hash'))[:12]})")
     refs = select_references(dataset, training_fingerprints(run.spec), request.n, request.split,
                              list(request.indices), what=f"run {request.run}")
+    check_metric_fields(dataset, run.spec.tracking.task, refs.positions[0])
     return dataset, refs
 
 

@@ -40,9 +40,16 @@ def fingerprint(task: str, params: dict[str, Any]) -> str:
 
 
 def dataset_fingerprints(dataset: Dataset, count: int | None = None) -> list[str]:
-    """Fingerprints of the dataset's first `count` (default all) accepted trajectories."""
+    """Fingerprints of the dataset's first `count` (default all) accepted trajectories (a DataError
+    naming every bad file among them)."""
     count = len(dataset) if count is None else min(count, len(dataset))
-    return [fingerprint(dataset.meta(i).task, dataset.meta(i).params) for i in range(count)]
+    dataset.check(range(count))
+    return [position_fingerprint(dataset, i) for i in range(count)]
+
+
+def position_fingerprint(dataset: Dataset, position: int) -> str:
+    meta = dataset.meta(position)
+    return fingerprint(meta.task, meta.params)
 
 
 @dataclass(frozen=True)
@@ -64,12 +71,13 @@ class ReferenceSet:
                 "fingerprints": list(self.fingerprints)}
 
 
-def check_metric_fields(dataset: Dataset, task: str | None = None) -> None:
+def check_metric_fields(dataset: Dataset, task: str | None = None, position: int = 0) -> None:
     """The references must carry what the metrics compare: both hands and feet as end effectors,
-    the feet as contacts (for the contact-force error), and the policy's task."""
+    the feet as contacts (for the contact-force error), and the policy's task (checked on the
+    trajectory at `position`: every file repeats the dataset's task and robot)."""
     if not len(dataset):
         raise DataError(f"dataset {dataset.root} has no accepted trajectories to evaluate on")
-    meta = dataset.meta(0)
+    meta = dataset.meta(position)
     if task and meta.task != task:
         raise DataError(f"dataset {dataset.root} holds '{meta.task}' trajectories; the policy was trained on '{task}'")
     missing = [name for name in (*HANDS, *FEET) if name not in meta.ee_names]
@@ -89,12 +97,20 @@ def select_references(dataset: Dataset, training: Collection[str] | None, n: int
         raise ConfigError(f"--split must be one of {', '.join(SPLITS)}, got '{split}'")
     if n < 1:
         raise ConfigError(f"--n must be >= 1, got {n}")
-    prints = dataset_fingerprints(dataset)
+    if not len(dataset):
+        raise DataError(f"dataset {dataset.root} has no accepted trajectories to evaluate on")
     train = set(training) if training is not None else None
-    seen = [None if train is None else p in train for p in prints]
-    if indices:
+
+    def seen_in_training(prints: dict[int, str]) -> dict[int, bool | None]:
+        return {p: None if train is None else f in train for p, f in prints.items()}
+
+    if indices:  # only these files are read: a bad file elsewhere does not matter
         positions = [dataset.position(int(i)) for i in indices]
+        prints = {p: position_fingerprint(dataset, p) for p in positions}
+        seen = seen_in_training(prints)
     else:
+        prints = dict(enumerate(dataset_fingerprints(dataset)))
+        seen = seen_in_training(prints)
         if train is None and split != "all":
             raise DataError(f"cannot tell which references {what} trained on (its training dataset is gone or "
                             "changed); pass --split all to evaluate on every reference anyway")

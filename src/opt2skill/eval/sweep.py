@@ -39,6 +39,7 @@ from opt2skill.eval.rollout import Rollout, rollout
 from opt2skill.geometry import quat_mul, tilt_angle
 from opt2skill.sim.terrain import Slope, Stairs, Terrain
 
+MIN_TRAVEL_ON_TERRAIN = 0.5  # m a reference must go beyond the terrain's start for a sweep to mean something
 TERRAINS = {  # name -> (unit shown, default step, default maximum)
     "stairs": ("cm", 0.02, 0.16),  # step heights in m (shown in cm), the paper's 0-16 cm
     "slope": ("deg", 2.5, 20.0),  # angles in degrees, the paper's 0-20 degrees
@@ -196,23 +197,51 @@ class SweepResult:
         return "\n".join(lines) + "\n"
 
 
-def choose_reference(dataset, training: list[str] | None, index: int | None) -> int:
-    """Dataset position of the sweep's reference: the given generation index, else the held-out
-    reference (any reference when none is held out) closest to the paper's set-up, speed ~1 m/s
-    and clearance ~0.2 m (when the references have those parameters)."""
-    from opt2skill.eval.references import dataset_fingerprints
+def choose_reference(dataset, training: list[str] | None, index: int | None) -> tuple[int, str]:
+    """Dataset position of the sweep's reference and what it is to the policy (held out, trained
+    on, unknown): the given generation index, else the held-out reference (a training one when
+    none is held out, and the note says so) closest to the paper's set-up, speed ~1 m/s and
+    clearance ~0.2 m (when the references have those parameters)."""
+    from opt2skill.eval.references import dataset_fingerprints, position_fingerprint
+
+    trained = set(training) if training is not None else None
+
+    def relation(p: int) -> str:
+        if trained is None:
+            return "unknown whether the policy trained on it (its training dataset is gone or changed)"
+        return "used in training, NOT held out" if position_fingerprint(dataset, p) in trained else "held out"
 
     if index is not None:
-        return dataset.position(index)
+        position = dataset.position(index)
+        return position, relation(position)
     prints = dataset_fingerprints(dataset)
-    held_out = [p for p in range(len(dataset)) if training is not None and prints[p] not in set(training)]
+    held_out = [p for p in range(len(dataset)) if trained is not None and prints[p] not in trained]
     candidates = held_out or list(range(len(dataset)))
 
     def distance_to_paper(p: int) -> float:
         params = dataset.meta(p).params
         return abs(params.get("speed", 1.0) - 1.0) + abs(params.get("clearance", 0.2) - 0.2)
 
-    return min(candidates, key=distance_to_paper)
+    position = min(candidates, key=distance_to_paper)
+    note = relation(position)
+    if trained is not None and not held_out:
+        note += f": {dataset.root} has no held-out reference (pass one with --dataset)"
+    return position, note
+
+
+def base_travel(traj: Trajectory) -> float:
+    """m the reference's base moves over the ground, start to end."""
+    return float(np.linalg.norm(traj.qpos[-1, :2] - traj.qpos[0, :2]))
+
+
+def check_reaches_terrain(reference: Trajectory, settings: SweepSettings, description: str) -> None:
+    """A sweep measures walking onto terrain: a reference that never gets there (a squat, a motion
+    in place) would report success for terrain the robot never met. Decided from the motion itself."""
+    travel, needed = base_travel(reference), settings.start + MIN_TRAVEL_ON_TERRAIN
+    if travel < needed:
+        raise ConfigError(f"the sweep's reference {description} moves its base {travel:.2f} m; the terrain starts "
+                          f"{settings.start:g} m ahead, so a sweep needs a reference that walks at least {needed:g} m: "
+                          "this run's task does not walk far enough to be swept")
 
 
 def sweep_yaws(settings: SweepSettings) -> np.ndarray:
@@ -224,6 +253,7 @@ def run_sweep(run_policy, reference: Trajectory, reference_info: dict[str, Any],
               threads: int | None = None, progress: bool = True) -> tuple[SweepResult, dict[float, list[Rollout]]]:
     """Every setting's trials with the run's policy (`eval.evaluate.RunPolicy`)."""
     settings.check()
+    check_reaches_terrain(reference, settings, reference_info.get("description", ""))
     from tqdm import tqdm
 
     tracking = run_policy.spec.tracking
@@ -235,7 +265,7 @@ def run_sweep(run_policy, reference: Trajectory, reference_info: dict[str, Any],
     min_height = tracking.terminations.min_height or 0.4
     yaws = sweep_yaws(settings)
     turned = [rotate_about_z(reference, float(y)) for y in yaws]
-    distance = float(np.linalg.norm(reference.qpos[-1, :2] - reference.qpos[0, :2]))
+    distance = base_travel(reference)
     info = {**reference_info, "distance": distance, "min_height": min_height}
     result = SweepResult(settings, run_policy.info, info)
     rollouts: dict[float, list[Rollout]] = {}

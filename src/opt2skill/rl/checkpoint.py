@@ -55,8 +55,15 @@ def save(run: Path, iteration: int, payload: dict[str, Any]) -> Path:
     directory.mkdir(parents=True, exist_ok=True)
     remove_temporaries(directory)  # left by a writer killed mid-write (only the writer may remove them)
     path = directory / f"model_{iteration:08d}.pt"
-    with atomic_path(path) as tmp:
-        torch.save({"format": FORMAT, "format_version": FORMAT_VERSION, "iteration": iteration, **payload}, tmp)
+    try:
+        with atomic_path(path) as tmp:
+            torch.save({"format": FORMAT, "format_version": FORMAT_VERSION, "iteration": iteration, **payload}, tmp)
+    except (OSError, RuntimeError) as exc:  # a full disk, a quota (torch's writer raises RuntimeError): the
+        kept = latest(run)  # temporary file is gone, the older checkpoints are untouched
+        reason = getattr(exc, "strerror", None) or str(exc).splitlines()[0]
+        raise DataError(f"cannot write checkpoint {path} ({reason}); "
+                        + (f"the previous checkpoint {kept.name} is intact and a rerun resumes from it" if kept
+                           else "no checkpoint was kept")) from None
     for old in list_checkpoints(run)[:-KEEP]:
         old.unlink(missing_ok=True)
     return path

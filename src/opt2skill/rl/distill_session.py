@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -37,18 +38,23 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.envs import ReferenceBank, TrackingEnv, tracking_config
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.expert.acting import EnvExpert
+from opt2skill.folder_lock import folder_lock
+from opt2skill.output_paths import check_output_dir
 from opt2skill.provenance import provenance
 from opt2skill.rl import checkpoint
 from opt2skill.rl.anchor import ExpertAnchor
 from opt2skill.rl.distill import Distiller
 from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
 from opt2skill.rl.policy import build_actor
-from opt2skill.rl.run import RunSpec, differences, open_run, trim_progress
-from opt2skill.rl.session import TrainRequest, held_out_judge, open_dataset, set_threads
+from opt2skill.rl.run import RunSpec, check_run, differences, open_run, trim_progress
+from opt2skill.rl.best import HeldOutJudge
+from opt2skill.rl.session import (TrainRequest, check_checkpoints, held_out_judge, no_announce, open_dataset,
+                                  resume_line, set_threads)
 from opt2skill.rl.trainer import Schedule, Trainer
 
 STAGE_DIR = checkpoint.DISTILL_STAGE_DIR
 STAGE_FILE = "stage.json"
+CHECKPOINT_MINUTES = 1.0  # a kill -9 during distillation loses at most about this much work
 
 
 class _EnvStepWriter:
@@ -90,7 +96,8 @@ def _check_gains(dataset) -> None:
 
 
 def distill_stage(request: TrainRequest, dataset, robot, config, distill: DistillConfig, distill_steps: int,
-                  threads: int, progress: bool) -> tuple[dict[str, Any], int]:
+                  threads: int, progress: bool, announce: Callable[[str], None] = no_announce,
+                  judge: HeldOutJudge | None = None) -> tuple[dict[str, Any], int]:
     """Run (or resume) the distillation stage: its final checkpoint's contents and the iteration it
     started from (0 for a fresh stage)."""
     stage = _open_stage(request.out, distill, distill_steps)
@@ -107,14 +114,16 @@ def distill_stage(request: TrainRequest, dataset, robot, config, distill: Distil
         actor = build_actor(distill.finetune_ppo(), env.actor_dim, env.critic_dim, env.nu)
         expert = dataset_expert(env, dataset, distill)
         distiller = Distiller(env, expert, actor, distill, stage, seed=request.seed)
-        distiller.judge = held_out_judge(request, dataset, robot, config, threads)
-        if not distiller.resume_latest():
+        distiller.judge = judge
+        if distiller.resume_latest():
+            announce(resume_line(request.out, distiller.iteration, checkpoint.latest(stage), "distillation"))
+        else:
             trim_progress(stage, 0)
         started = distiller.iteration
         writer = _writer(Path(request.out) / "tb" / STAGE_DIR, distiller.env_steps)
         try:
             distiller.train(total, progress=progress, writer=_EnvStepWriter(writer, lambda: distiller.env_steps),
-                            checkpoint_every=request.checkpoint_every)
+                            checkpoint_every=request.checkpoint_every, checkpoint_minutes=CHECKPOINT_MINUTES)
         finally:
             writer.close()
     return checkpoint.load(checkpoint.latest(stage)), started
@@ -160,16 +169,19 @@ def finetune_trainer(env: TrackingEnv, dataset, distill: DistillConfig, run: Pat
 
 
 def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool = True,
-          distill: DistillConfig | None = None) -> dict[str, Any]:
-    """Distil (or resume distilling), then train with PPO (or resume it); the last PPO iteration's figures."""
+          distill: DistillConfig | None = None, announce: Callable[[str], None] = no_announce) -> dict[str, Any]:
+    """Distil (or resume distilling), then train with PPO (or resume it); the last PPO iteration's
+    figures. `announce` is told each stage's resume."""
     request.check()
     if not (isinstance(distill_steps, int) and distill_steps >= 1):
         raise ConfigError(f"--distill-steps must be a positive number of environment steps, got {distill_steps}")
     distill = distill or DistillConfig()
     distill.check()
+    check_output_dir(request.out)
     dataset, robot = open_dataset(request.dataset)
     _check_gains(dataset)
     task = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale)
+    judge = held_out_judge(request, dataset, robot, task)  # both stages judged under the task's Table II and noise
     config = finetune_tracking_config(task, distill)  # the PPO stage's, recorded as the run's
     ppo = distill.finetune_ppo()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
@@ -177,24 +189,36 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
                    num_envs=request.num_envs, seed=request.seed)
     invocation = {"command": request.command, "steps": request.steps, "init": "distill", "distill_steps": distill_steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
-    existed = open_run(request.out, spec, invocation)
-    if existed and checkpoint.latest(request.out) is not None and not (Path(request.out) / STAGE_DIR).is_dir():
-        raise ConfigError(f"{request.out} is a plain PPO run; choose another --out for --init distill")
-    threads = set_threads(request.threads)
-    distilled, resumed = None, {"distill": None, "ppo": None}  # the iteration each stage went on from
-    if checkpoint.latest(request.out) is None:  # the PPO stage has not started: distil first
-        distilled, resumed["distill"] = distill_stage(request, dataset, robot, task, distill, distill_steps,
-                                                      threads, progress)
-    else:
-        _open_stage(request.out, distill, distill_steps)  # same settings as before
+    with folder_lock(request.out):  # one lock for both stages: RUN/distill is inside RUN
+        existing = check_run(request.out, spec)  # the configuration first, then what the checkpoints are for
+        if existing and checkpoint.latest(request.out) is not None and not (Path(request.out) / STAGE_DIR).is_dir():
+            raise ConfigError(f"{request.out} is a plain PPO run; choose another --out for --init distill")
+        check_checkpoints(request.out, robot, config)
+        open_run(request.out, spec, invocation)
+        threads = set_threads(request.threads)
+        distilled, resumed = None, {"distill": None, "ppo": None}  # the iteration each stage went on from
+        if checkpoint.latest(request.out) is None:  # the PPO stage has not started: distil first
+            distilled, resumed["distill"] = distill_stage(request, dataset, robot, task, distill, distill_steps,
+                                                          threads, progress, announce, judge)
+        else:
+            _open_stage(request.out, distill, distill_steps)  # same settings as before
+        return _ppo_stage(request, dataset, robot, config, distill, threads, distilled, resumed, progress, announce,
+                          judge)
+
+
+def _ppo_stage(request: TrainRequest, dataset, robot, config, distill: DistillConfig, threads: int,
+               distilled: dict[str, Any] | None, resumed: dict[str, int | None], progress: bool,
+               announce: Callable[[str], None], judge: HeldOutJudge | None = None) -> dict[str, Any]:
+    """PPO from the distilled actor (`distilled`; None: resume the PPO stage's own checkpoints)."""
     offset = checkpoint.load(checkpoint.latest(Path(request.out) / STAGE_DIR))["env_steps"] if distilled is None \
         else distilled["env_steps"]
-
     bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
     with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
         trainer = finetune_trainer(env, dataset, distill, request.out, request.seed)
-        trainer.judge = held_out_judge(request, dataset, robot, task, threads)
-        if not trainer.resume_latest():
+        trainer.judge = judge
+        if trainer.resume_latest():
+            announce(resume_line(request.out, trainer.iteration, checkpoint.latest(request.out), "PPO"))
+        else:
             trim_progress(request.out, 0)
             start_from_distilled(trainer, distilled)
         resumed["ppo"] = trainer.iteration

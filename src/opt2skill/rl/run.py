@@ -23,6 +23,7 @@ from typing import Any
 from opt2skill.data.atomic import dumps, write_json
 from opt2skill.envs.config import TrackingConfig
 from opt2skill.errors import ConfigError, DataError
+from opt2skill.folder_lock import LOCK_FILE
 from opt2skill.rl.config import PPOConfig
 
 FORMAT = "opt2skill-run"
@@ -111,27 +112,34 @@ def read_spec(run: Path) -> RunSpec:
     return RunSpec.from_dict(read_run(run)["identity"])
 
 
-def open_run(run: Path, spec: RunSpec, invocation: dict[str, Any]) -> bool:
-    """Create RUN for `spec`, or check that the existing RUN has exactly this spec. Records the
-    invocation. Returns True if the run existed (a resume)."""
+def check_run(run: Path, spec: RunSpec) -> dict[str, Any] | None:
+    """RUN's run file if RUN is a run of exactly `spec`, None if RUN is new (missing or empty); a
+    ConfigError naming the differences otherwise. Reads only."""
     run = Path(run)
-    identity = spec.to_dict()
-    if run.exists() and not run.is_dir():
-        raise ConfigError(f"--out {run} exists and is not a directory")
-    entry = {"started": datetime.datetime.now().isoformat(timespec="seconds"), **invocation}
     if (run / RUN_FILE).is_file():
         data = read_run(run)
-        diff = differences(data["identity"], identity)
+        diff = differences(data["identity"], spec.to_dict())
         if diff:
             shown = "; ".join(diff[:6]) + (f"; and {len(diff) - 6} more" if len(diff) > 6 else "")
             raise ConfigError(f"{run} is a run with a different configuration ({shown}); choose another --out")
+        return data
+    if run.is_dir() and any(p.name != LOCK_FILE for p in run.iterdir()):
+        raise ConfigError(f"--out {run} is a non-empty directory that is not a training run")
+    return None
+
+
+def open_run(run: Path, spec: RunSpec, invocation: dict[str, Any]) -> bool:
+    """Create RUN for `spec`, or check that the existing RUN has exactly this spec. Records the
+    invocation. Returns True if the run existed (a resume). Call with RUN's folder lock held."""
+    run = Path(run)
+    data = check_run(run, spec)
+    entry = {"started": datetime.datetime.now().isoformat(timespec="seconds"), **invocation}
+    if data is not None:
         data["invocations"].append(entry)
         write_json(run / RUN_FILE, data)
         return True
-    if run.is_dir() and any(run.iterdir()):
-        raise ConfigError(f"--out {run} is a non-empty directory that is not a training run")
     run.mkdir(parents=True, exist_ok=True)
-    write_json(run / RUN_FILE, {"format": FORMAT, "format_version": FORMAT_VERSION, "identity": identity,
+    write_json(run / RUN_FILE, {"format": FORMAT, "format_version": FORMAT_VERSION, "identity": spec.to_dict(),
                                 "invocations": [entry]})
     return False
 

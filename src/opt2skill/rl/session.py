@@ -4,6 +4,7 @@ directory, the environment, the trainer; resumable and logged (docs/training.md)
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -16,13 +17,15 @@ from opt2skill.envs import ABLATIONS, ReferenceBank, TrackingEnv, evaluation_con
 from opt2skill.envs.config import TrackingConfig
 from opt2skill.envs.evaluation import TrackedMotion, track
 from opt2skill.errors import ConfigError, DataError
+from opt2skill.folder_lock import folder_lock
 from opt2skill.model import load_robot
+from opt2skill.output_paths import check_output_dir
 from opt2skill.provenance import provenance
 from opt2skill.rl import checkpoint
 from opt2skill.rl.best import HeldOutJudge, JudgeConfig
 from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.policy import Policy, load_policy
-from opt2skill.rl.run import RunSpec, open_run, trim_progress
+from opt2skill.rl.run import RunSpec, check_run, open_run, trim_progress
 from opt2skill.rl.trainer import Schedule, Trainer
 
 MAX_ENVS = 4096
@@ -73,10 +76,11 @@ def open_dataset(path: Path):
     if dataset.identity.get("robot_hash") != robot.hash:
         raise DataError(f"dataset {path} was made with a different '{robot.name}' robot file "
                         f"(hash {str(dataset.identity.get('robot_hash'))[:12]}, installed {robot.hash[:12]})")
+    dataset.check()  # training reads every file: name every bad one now, at once
     return dataset, robot
 
 
-def held_out_judge(request: TrainRequest, dataset, robot, tracking: TrackingConfig, threads: int) -> HeldOutJudge | None:
+def held_out_judge(request: TrainRequest, dataset, robot, tracking: TrackingConfig) -> HeldOutJudge | None:
     """The judge of `request.held_out` (None without one): its first `judge.n` references, which must be
     the training task's, for the same robot, and not the training dataset itself."""
     if request.held_out is None:
@@ -88,7 +92,18 @@ def held_out_judge(request: TrainRequest, dataset, robot, tracking: TrackingConf
     if Path(request.held_out).resolve() == Path(request.dataset).resolve():
         raise ConfigError("--held-out must be references the run does not train on (another seed), not --dataset")
     references = [held_out[i] for i in range(min(request.judge.n, len(held_out)))]
-    return HeldOutJudge(request.out, robot, references, tracking, request.judge, threads=threads)
+    return HeldOutJudge(request.out, robot, references, tracking, request.judge, threads=request.threads)
+
+
+def check_checkpoints(run: Path, robot, config) -> None:
+    """A run's newest checkpoints (its own and its distillation stage's) must be for this robot and
+    task: checked before a resume writes anything into the run."""
+    obs = config.observations
+    expected = checkpoint.identity(robot.name, robot.hash, config.task, config.ablation, obs.history, obs.stride)
+    for directory in (Path(run), Path(run) / checkpoint.DISTILL_STAGE_DIR):
+        path = checkpoint.latest(directory)
+        if path is not None:
+            checkpoint.check_identity(path, checkpoint.load(path), expected)
 
 
 def set_threads(threads: int | None) -> int:
@@ -99,26 +114,48 @@ def set_threads(threads: int | None) -> int:
     return n
 
 
-def train(request: TrainRequest, progress: bool = True) -> dict[str, Any]:
-    """Train (or resume) the run `request.out`; the last iteration's figures."""
+def no_announce(line: str) -> None:
+    """The default `announce`: library callers that want no output."""
+
+
+def resume_line(run: Path, iteration: int, path: Path | None, stage: str = "") -> str:
+    return f"resuming {run}{' (' + stage + ')' if stage else ''} from iteration {iteration} (checkpoint {path})"
+
+
+def train(request: TrainRequest, progress: bool = True, announce: Callable[[str], None] = no_announce) -> dict[str, Any]:
+    """Train (or resume) the run `request.out`; the last iteration's figures. `announce` is told a
+    resume (the line `resume_line` makes)."""
     request.check()
+    check_output_dir(request.out)
     dataset, robot = open_dataset(request.dataset)
     config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale)
+    judge = held_out_judge(request, dataset, robot, config)  # its references are read before anything is written
     ppo = PPOConfig()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
                    num_envs=request.num_envs, seed=request.seed)
     invocation = {"command": request.command, "steps": request.steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
-    existed = open_run(request.out, spec, invocation)
-    threads = set_threads(request.threads)
-    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
+    check_run(request.out, spec)  # a resume with another configuration: said before the slow loading
+    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)  # every file read first
+    with folder_lock(request.out):
+        check_checkpoints(request.out, robot, config)
+        existed = open_run(request.out, spec, invocation)
+        return _train_ppo(request, robot, bank, config, ppo, existed, progress, announce, judge)
+
+
+def _train_ppo(request: TrainRequest, robot, bank, config, ppo: PPOConfig, existed: bool, progress: bool,
+               announce: Callable[[str], None], judge: HeldOutJudge | None = None) -> dict[str, Any]:
+    """The PPO loop of `train` on an opened run (its lock held)."""
     from torch.utils.tensorboard import SummaryWriter
 
+    threads = set_threads(request.threads)
     with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
         trainer = Trainer(env, ppo, request.out, seed=request.seed)
-        trainer.judge = held_out_judge(request, dataset, robot, config, threads)
-        if not (existed and trainer.resume_latest()):
+        trainer.judge = judge
+        if existed and trainer.resume_latest():
+            announce(resume_line(request.out, trainer.iteration, checkpoint.latest(request.out)))
+        else:
             trim_progress(request.out, 0)
             trainer.warm_up_normalizers()
         if trainer.iteration >= trainer.iterations_for(request.steps):

@@ -21,6 +21,7 @@ from opt2skill.data.store import ACCEPTED, FAILED, REJECTED, DatasetStore, Outco
 from opt2skill.data.summary import summarize
 from opt2skill.data.validate import ValidationConfig
 from opt2skill.errors import ConfigError
+from opt2skill.output_paths import check_output_dir
 from opt2skill.provenance import provenance
 from opt2skill.trajopt.jobs import Job, Result, failure, run_job
 from opt2skill.trajopt.process_pool import run_jobs
@@ -73,8 +74,9 @@ def _overrides(request: GenerateRequest) -> dict[str, Any]:
 
 def generate(request: GenerateRequest, progress: bool = True) -> dict[str, Any]:
     """Generate (or resume) the dataset of `request`; returns its summary."""
-    if request.n < 0:
-        raise ConfigError(f"--n must be >= 0, got {request.n}")
+    if request.n < 1:
+        raise ConfigError(f"--n must be >= 1 (the number of trajectories, indices 0 .. n-1), got {request.n}")
+    check_output_dir(request.out)
     if request.timeout is not None and request.timeout <= 0:
         raise ConfigError(f"--timeout must be > 0 seconds, got {request.timeout:g}")
     os.environ["OMP_NUM_THREADS"] = "1"  # inherited by every worker before it loads Crocoddyl

@@ -14,9 +14,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from opt2skill.data.file_check import BadFiles, scan
 from opt2skill.data.reader import Dataset
 from opt2skill.data.store import ACCEPTED, REJECTED
 from opt2skill.data.validate import ValidationConfig
+from opt2skill.errors import DataError
 
 RTOL, ATOL = 1e-6, 1e-9
 
@@ -36,6 +38,7 @@ class RevalidationReport:
     disagreements: list[tuple[int, str, Any, Any]] = field(default_factory=list)  # index, figure, stored, new
     decision_changes: list[tuple[int, str, list[str]]] = field(default_factory=list)  # index, stored status, reasons now
     not_recomputed: set[str] = field(default_factory=set)  # stored figures the files cannot reproduce
+    bad_files: BadFiles | None = None  # files that could not be re-checked, every one of them
 
 
 def _close(a: Any, b: Any) -> bool:
@@ -85,7 +88,11 @@ def revalidate(
     datasets = {status: Dataset.open(root, status) for status in (ACCEPTED, REJECTED)}
     identity = datasets[ACCEPTED].identity
     config = ValidationConfig.from_dict(identity["validation"]).with_overrides(limits or {})
-    items = [(str(p), status) for status, ds in datasets.items() for p in ds.files]
+    items, problems = [], []
+    for status, ds in datasets.items():  # every bad file is reported, not only the first
+        good, bad = scan(ds.files, identity)
+        items += [(str(p), status) for p in good]
+        problems += bad
     # Gains and the task matter for the figures: the registry gives the task of the dataset.
     args = (identity["task"], robot or identity["robot"], config.as_dict())
     bar = None
@@ -96,7 +103,10 @@ def revalidate(
     checks = []
     if workers <= 1 or len(items) <= 1:
         for path, status in items:
-            checks.append(_recheck(path, status, *args))
+            try:
+                checks.append(_recheck(path, status, *args))
+            except DataError as exc:  # unreadable arrays, NaN or infinity
+                problems.append(str(exc))
             if bar is not None:
                 bar.update(1)
     else:
@@ -104,13 +114,18 @@ def revalidate(
         with concurrent.futures.ProcessPoolExecutor(min(workers, len(items)), mp_context=context) as pool:
             futures = [pool.submit(_recheck, path, status, *args) for path, status in items]
             for future in concurrent.futures.as_completed(futures):
-                checks.append(future.result())
+                try:
+                    checks.append(future.result())
+                except DataError as exc:
+                    problems.append(str(exc))
                 if bar is not None:
                     bar.update(1)
     if bar is not None:
         bar.close()
     checks.sort(key=lambda c: c.index)
     report = RevalidationReport(checks=checks, limits=dict(config.limits))
+    if problems:
+        report.bad_files = BadFiles(Path(root), datasets[ACCEPTED].header, sorted(problems))
     for c in checks:
         report.disagreements += [(c.index, *d) for d in compare(c.stored, c.new)]
         report.not_recomputed |= set(c.stored.get("figures", {})) - set(c.new["figures"])

@@ -15,14 +15,12 @@ import pinocchio as pin
 from opt2skill.data.record import Trajectory
 from opt2skill.trajopt.config import require
 from opt2skill.trajopt.phase_task import PhaseTask, Plan
-from opt2skill.trajopt.params import Param
+from opt2skill.trajopt.task_params import TASK_PARAMS
 from opt2skill.trajopt.phases import Contact, Knot, Phase
 from opt2skill.trajopt.posture import Posture
 from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights, SolverSettings
 
-PARAMS = (
-    Param("depth", allowed=(0.0, 0.2), default_range=(0.0, 0.15), unit="m", help="how far the CoM goes down"),
-)
+PARAMS = TASK_PARAMS["squat"]
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from opt2skill.data.record import Trajectory
 from opt2skill.errors import SolverError
 from opt2skill.trajopt.config import require
 from opt2skill.trajopt.gait import Foothold, GaitPlan, GaitSpec, plan_gait, swing_reference, yaw_matrix
-from opt2skill.trajopt.params import Param
+from opt2skill.trajopt.task_params import TASK_PARAMS
 from opt2skill.trajopt.phase_task import PhaseTask, Plan
 from opt2skill.trajopt.phases import Contact, Knot, Phase, Problem
 from opt2skill.trajopt.posture import Posture
@@ -30,15 +30,7 @@ from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights, Solv
 from opt2skill.trajopt.solver import Solution
 from opt2skill.trajopt.walk_strategy import RecedingSettings, StrideGuess
 
-PARAMS = (
-    Param("speed", allowed=(0.0, 1.5), default_range=(0.0, 1.5), unit="m/s", help="forward speed (0: stepping in place)"),
-    Param("clearance", allowed=(0.03, 0.3), default_range=(0.10, 0.20), unit="m", help="swing-foot apex height"),
-    Param("step_duration", allowed=(0.25, 0.8), default_range=(0.3, 0.4), unit="s", help="one step (gait period / 2)"),
-    Param("double_support", allowed=(0.0, 0.5), default_range=(0.1, 0.3), unit="", help="fraction of a step on both feet"),
-    Param("lateral_speed", allowed=(-0.3, 0.3), default_range=(0.0, 0.0), unit="m/s", help="sideways speed (left +)"),
-    Param("yaw_rate", allowed=(-0.5, 0.5), default_range=(0.0, 0.0), unit="rad/s", help="turning rate (left +)"),
-    Param("height_offset", allowed=(-0.15, 0.05), default_range=(-0.05, 0.0), unit="m", help="base height change"),
-)
+PARAMS = TASK_PARAMS["walk"]
 
 FEET = ("left_foot", "right_foot")
 BASE_SITE_KEY = "imu_site"
