@@ -7,8 +7,10 @@ from collections.abc import Iterable
 from rich.console import Console
 from rich.table import Table
 
-console = Console()
-err_console = Console(stderr=True)
+# soft_wrap: a line longer than the terminal is left to the terminal, never broken by rich, so a path
+# printed in a message stays one copyable (and greppable) string.
+console = Console(soft_wrap=True)
+err_console = Console(stderr=True, soft_wrap=True)
 
 
 def figures_table(title: str, rows: Iterable[tuple[str, str]], headers: tuple[str, str] = ("quantity", "value")) -> Table:
