@@ -77,9 +77,10 @@ class Result:
 
 
 def cli(capsys, *args) -> Result:
-    """`opt2skill ARGS` in this process (the entry point itself: its exit status and output)."""
+    """`opt2skill ARGS` in this process (the entry point itself: its exit status and output). What
+    a command sets for its process (torch threads, the SIGTERM handler) is restored for the next test."""
     capsys.readouterr()
-    argv = sys.argv
+    argv, threads, on_term = sys.argv, torch.get_num_threads(), signal.getsignal(signal.SIGTERM)
     sys.argv = ["opt2skill", *map(str, args)]
     try:
         main()
@@ -88,6 +89,8 @@ def cli(capsys, *args) -> Result:
         code = exc.code if isinstance(exc.code, int) else 1
     finally:
         sys.argv = argv
+        torch.set_num_threads(threads)
+        signal.signal(signal.SIGTERM, on_term)
     out, err = capsys.readouterr()
     return Result(code, " ".join(out.split()), err)
 

@@ -69,9 +69,12 @@ def folder_lock(folder: str | Path, option: str = "--out") -> Iterator[None]:
     another process holds it. Taking over from a killed writer is said with a DataWarning."""
     folder = Path(folder)
     created = not folder.exists()
-    folder.mkdir(parents=True, exist_ok=True)
-    # Opened without truncating: the holder's line must survive a refused attempt.
-    fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        # Opened without truncating: the holder's line must survive a refused attempt.
+        fd = os.open(folder / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as exc:  # callers check their paths first (output_paths); this is the last word
+        raise DataError(f"cannot write into {option} {folder} ({exc.strerror or exc})") from None
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
