@@ -170,7 +170,8 @@ class TrackingEnv:
         self.steps[worlds] = 0
         self._ep_reward[worlds] = 0.0
         self._ep_terms[worlds] = 0.0
-        self._push_countdown[worlds] = self._push_intervals(k)
+        if self._pushes_on():  # no draws otherwise: a run without pushes keeps its random stream
+            self._push_countdown[worlds] = self._push_intervals(k)
         held = self.actions_for_targets(targets)  # the action that held the start pose
         self.action_1[worlds] = held
         self.action_2[worlds] = held
@@ -271,8 +272,8 @@ class TrackingEnv:
         return r.enabled and r.push_speed > 0
 
     def _push_intervals(self, k: int) -> np.ndarray:
-        """Policy steps until the next push of k worlds (drawn whether or not pushes are on, so that
-        switching them on does not change the other draws of a seeded run)."""
+        """Policy steps until the next push of k worlds (a world reset while pushes were off has 0: it
+        is pushed at the first step after they come on)."""
         lo, hi = self.config.randomization.push_interval
         return np.maximum(np.rint(self.rng.uniform(lo, hi, k) / self.sim.policy_dt), 1).astype(np.int64)
 
