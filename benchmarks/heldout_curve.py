@@ -70,9 +70,12 @@ def plot(runs: list[tuple[Path, list[dict]]], path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("runs", type=Path, nargs="+")
+    parser.add_argument("runs", type=Path, nargs="*", help="run directories trained with --held-out")
     parser.add_argument("--out", type=Path, default=Path("bench/heldout_curve.png"))
     args = parser.parse_args()
+    if not args.runs:  # `make bench` runs every benchmark without arguments
+        print("heldout_curve: skipped, needs run directories trained with --held-out")
+        return
     runs = [(run, read(run)) for run in args.runs]
     for run, judgements in runs:
         print(table(run, judgements) + "\n")

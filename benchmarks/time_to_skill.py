@@ -231,6 +231,9 @@ def main() -> None:
         plot(curves, out / "time_to_skill.png", " | ".join(dict.fromkeys(machines)))
         print(f"wrote {out / 'time_to_skill.png'}")
         return
+    if not (args.dataset or args.held_out):  # `make bench` runs every benchmark without arguments
+        print("time_to_skill: skipped, needs --dataset and --held-out (or --replot)")
+        return
     if not (args.dataset and args.held_out):
         parser.error("--dataset and --held-out are required (unless --replot)")
     torch.set_num_threads(args.threads)
