@@ -18,8 +18,7 @@ import json
 from pathlib import Path
 
 from opt2skill.rl.best import JUDGEMENTS, TABLE_III, score
-
-UNITS = {"E_ee_foot": "cm", "E_joint": "rad", "E_vel_x": "cm/s", "E_pos_x": "%"}
+from opt2skill.rl.best import TABLE_III_UNITS as UNITS
 MIN_SUCCESS = 0.95
 
 

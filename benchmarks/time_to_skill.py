@@ -44,6 +44,7 @@ from opt2skill.envs import ReferenceBank, TrackingEnv, tracking_config
 from opt2skill.eval.evaluate import eval_config
 from opt2skill.eval.rollout import rollout
 from opt2skill.model import load_robot
+from opt2skill.rl.best import TABLE_III, TABLE_III_UNITS
 from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.distill import Distiller
 from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
@@ -52,8 +53,7 @@ from opt2skill.rl.policy import Policy, build_actor
 from opt2skill.rl.trainer import Schedule, Trainer
 
 # Table III, Opt2Skill (walking): the row to reach, and the success rate required with it.
-TARGET = {"E_ee_foot": 5.23, "E_joint": 0.03, "E_vel_x": 4.86, "E_pos_x": 1.14}
-UNITS = {"E_ee_foot": "cm", "E_joint": "rad", "E_vel_x": "cm/s", "E_pos_x": "%"}
+TARGET, UNITS = TABLE_III, TABLE_III_UNITS
 MIN_SUCCESS = 0.95
 
 

@@ -33,6 +33,7 @@ from opt2skill.rl.checkpoint import best_path
 JUDGEMENTS = "heldout.jsonl"
 # Table III, Opt2Skill (walking): the errors a judgement reports, relative to the paper's row.
 TABLE_III = {"E_ee_foot": 5.23, "E_joint": 0.03, "E_vel_x": 4.86, "E_pos_x": 1.14}
+TABLE_III_UNITS = {"E_ee_foot": "cm", "E_joint": "rad", "E_vel_x": "cm/s", "E_pos_x": "%"}
 
 
 @dataclass(frozen=True)
