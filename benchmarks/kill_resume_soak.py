@@ -1,12 +1,15 @@
 """Kill-and-resume soak: `generate` and `train` killed with SIGKILL at random moments, then resumed.
 
-    python benchmarks/kill_resume_soak.py [--kills 20] [--train-kills 20] [--task squat] [--n 8]
-                                          [--iterations 12] [--out DIR] [--seed 0]
+    python benchmarks/kill_resume_soak.py [--kills 20] [--train-kills 20] [--task squat] [--n 30]
+                                          [--iterations 40] [--out DIR] [--seed 0]
 
-1. An uninterrupted `generate TASK --n N` is the reference (and its wall time sets the window in
-   which kills are drawn).
+1. An uninterrupted `generate TASK --n N` is the reference. Its wall time and that of the same
+   command rerun on the finished folder (start-up and checks only) set the window in which kills
+   are drawn: from half the start-up to the start-up plus two items' worth of work, so that most
+   kills land in the middle of the work and some during start-up, and the work lasts for all of them.
 2. The same command into another folder is started and killed (the whole process group, workers
-   included) after a uniformly drawn time, `--kills` times, then run to the end. Every record must
+   included) after a uniformly drawn time in that window, until `--kills` kills have landed, then
+   run to the end. Every record must
    then equal the reference's (the same status, the same arrays, knots, parameters and validation
    figures: everything except timing fields and provenance), `validate` must recompute every figure
    equal, and no index may be missing.
@@ -15,7 +18,7 @@
    must list iterations 1..N once each, and every checkpoint left must load.
 
 It prints the counts: kills that landed, records compared, corrupt or lost records, progress-log
-gaps and duplicates. Not a test: at full scale it takes an hour or more of CPU.
+gaps and duplicates. Not a test: at full scale it takes about ten minutes on 2 cores.
 """
 
 from __future__ import annotations
@@ -52,11 +55,17 @@ def run(args: list[str], timeout: float | None = None) -> tuple[int | None, floa
     return proc.returncode, time.perf_counter() - start
 
 
+def kill_window(full: float, startup: float, items: int) -> tuple[float, float]:
+    """Kill times: from half the start-up to the start-up plus two items' worth of work (s)."""
+    per_item = max(full - startup, 0.1) / items
+    return 0.5 * startup, startup + 2 * per_item
+
+
 def killed_then_finished(args: list[str], kills: int, window: tuple[float, float], rng) -> int:
-    """Run `args` killed after a random time in `window` s, `kills` times (or until it finishes
-    first), then to the end; the number of kills that landed."""
+    """Run `args` killed after a random time in `window` s until `kills` kills have landed (or until
+    it finishes first), then to the end; the number of kills that landed."""
     landed = 0
-    for _ in range(kills):
+    while landed < kills:
         code, _ = run(args, timeout=float(rng.uniform(*window)))
         if code is not None:
             return landed  # it finished before the kill: nothing left to interrupt
@@ -124,9 +133,9 @@ def main() -> None:
     parser.add_argument("--kills", type=int, default=20, help="SIGKILLs of generate")
     parser.add_argument("--train-kills", type=int, default=20, help="SIGKILLs of train")
     parser.add_argument("--task", default="squat")
-    parser.add_argument("--n", type=int, default=8, help="trajectories generated")
+    parser.add_argument("--n", type=int, default=30, help="trajectories generated")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--iterations", type=int, default=12, help="PPO iterations of the soak run")
+    parser.add_argument("--iterations", type=int, default=40, help="PPO iterations of the soak run")
     parser.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the kill times")
     args = parser.parse_args()
@@ -135,18 +144,23 @@ def main() -> None:
     gen = ["generate", args.task, "--n", str(args.n), "--workers", str(args.workers), "--keep-gains", "--quiet"]
 
     _, gen_time = run([*gen, "--out", str(root / "reference")])
-    gen_kills = killed_then_finished([*gen, "--out", str(root / "resumed")], args.kills, (1.0, gen_time), rng)
+    _, gen_startup = run([*gen, "--out", str(root / "reference")])  # finished: start-up and checks only
+    gen_window = kill_window(gen_time, gen_startup, args.n / args.workers)
+    gen_kills = killed_then_finished([*gen, "--out", str(root / "resumed")], args.kills, gen_window, rng)
     data = compare_datasets(root / "reference", root / "resumed")
     code, _ = run(["validate", str(root / "resumed"), "--workers", str(args.workers), "--quiet"])
 
     train = ["train", "--dataset", str(root / "reference"), "--num-envs", "4", "--threads", "1", "--quiet",
              "--checkpoint-every", "1", "--steps", str(args.iterations * 4 * 48)]
     _, train_time = run([*train, "--out", str(root / "run_reference")])
-    train_kills = killed_then_finished([*train, "--out", str(root / "run")], args.train_kills, (2.0, train_time), rng)
+    _, train_startup = run([*train, "--out", str(root / "run_reference")])  # "already trained"
+    train_window = kill_window(train_time, train_startup, args.iterations)
+    train_kills = killed_then_finished([*train, "--out", str(root / "run")], args.train_kills, train_window, rng)
     training = check_training(root / "run", args.iterations)
 
-    print(f"soak in {root} ({args.task}, --n {args.n}, {args.iterations} PPO iterations; kill times uniform in "
-          f"[1, {gen_time:.0f}] s and [2, {train_time:.0f}] s, the uninterrupted runs' lengths)")
+    print(f"soak in {root} ({args.task}, --n {args.n}, {args.iterations} PPO iterations; uninterrupted runs "
+          f"{gen_time:.1f} s and {train_time:.1f} s, start-up {gen_startup:.1f} s and {train_startup:.1f} s; kill times "
+          f"uniform in [{gen_window[0]:.1f}, {gen_window[1]:.1f}] s and [{train_window[0]:.1f}, {train_window[1]:.1f}] s)")
     print(f"generate: {gen_kills} kills landed of {args.kills}; {data['records']} records compared; "
           f"{data['corrupt']} corrupt, {data['lost']} lost, {data['extra']} extra; validate exit status {code}")
     print(f"train: {train_kills} kills landed of {args.train_kills}; " + ", ".join(f"{k} {v}" for k, v in training.items()))

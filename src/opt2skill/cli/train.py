@@ -46,6 +46,11 @@ def train(
     distill_steps: int = typer.Option(2_000_000, "--distill-steps", help="Environment steps of distillation (--init distill)."),
     distill_noise: float = typer.Option(0.0, "--distill-noise", help="Factor in [0, 1] on Table II's observation noise "
                                         "the actor reads while distilling (the expert reads the true state)."),
+    finetune: str = typer.Option("full", "--finetune", help="--init distill: what PPO trains after distillation: "
+                                 "full (the distilled actor's weights) or residual (the distilled actor frozen, "
+                                 "extra units learn a correction; rl.residual)."),
+    pace: str = typer.Option("clock", "--pace", help="--init distill: the PPO stage's curriculum advances with the "
+                             "steps (clock) or only while the worlds rarely fail (adaptive; rl.pace)."),
     kp_scale: float = typer.Option(1.0, "--kp-scale", help="Servo stiffness for this policy: the robot's Kp times "
                                    "this, in [0.05, 2] (training, evaluation, export)."),
     held_out: Path = typer.Option(None, "--held-out", help="References of another seed: every --judge-every "
@@ -63,6 +68,8 @@ def train(
 
     if init not in ("scratch", "distill"):
         raise ConfigError(f"--init must be 'scratch' or 'distill', got '{init}'")
+    if init == "scratch" and (finetune != "full" or pace != "clock"):
+        raise ConfigError("--finetune and --pace set the PPO stage after distillation: use them with --init distill")
 
     request = TrainRequest(dataset=dataset, out=out, steps=steps, num_envs=num_envs, history=history,
                            ablation=ablation, seed=seed, threads=threads, checkpoint_every=checkpoint_every,
@@ -75,8 +82,9 @@ def train(
 
         from opt2skill.rl.distill_config import DistillConfig
 
-        result = run_distilled(request, distill_steps, progress=not quiet, distill=DistillConfig(noise=distill_noise),
-                               announce=_say)
+        distill = DistillConfig(noise=distill_noise, finetune=finetune, pace=pace)
+        distill.check()  # before anything is read or written
+        result = run_distilled(request, distill_steps, progress=not quiet, distill=distill, announce=_say)
     else:
         result = run(request, progress=not quiet, announce=_say)
     if result.get("already_done"):

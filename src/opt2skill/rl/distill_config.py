@@ -67,6 +67,18 @@ class DistillConfig:
     # iteration (the paper's way), which wrecks the distilled actor fastest (docs/distill.md). 0.25 is
     # about the distillation's conditions (its delays of 5 ms are a quarter of Table II's 20 ms).
     finetune_randomization: float = 0.25
+    # What PPO trains after distillation: "full" (the distilled actor's weights, the paper's way) or
+    # "residual" (`rl.residual`: the distilled actor frozen, extra units of `residual_dims` per hidden
+    # layer learn a correction added to its action).
+    finetune: str = "full"
+    residual_dims: tuple[int, ...] = (128, 128, 64, 64)
+    # How the PPO stage's curriculum (noise, penalties, randomization width) advances: "clock" (with
+    # the environment steps, over --steps, the paper's) or "adaptive" (`rl.pace.AdaptivePace`: a step
+    # of `adaptive_step` after each iteration whose worlds fell less than `adaptive_fall_rate` times
+    # per second of experience, so the world widens only as fast as the policy copes).
+    pace: str = "clock"
+    adaptive_step: float = 0.005
+    adaptive_fall_rate: float = 0.05  # falls per world-second (one fall per 20 s of walking)
 
     def check(self) -> None:
         def require(ok: bool, message: str) -> None:
@@ -95,6 +107,12 @@ class DistillConfig:
         require(self.anchor_learning_rate > 0, f"anchor_learning_rate must be > 0, got {self.anchor_learning_rate}")
         require(0 <= self.finetune_randomization <= 1,
                 f"finetune_randomization must be a width in [0, 1] of Table II's, got {self.finetune_randomization}")
+        require(self.finetune in ("full", "residual"), f"finetune must be 'full' or 'residual', got '{self.finetune}'")
+        require(len(self.residual_dims) == len(PPOConfig().hidden_dims) and all(d > 0 for d in self.residual_dims),
+                f"residual_dims must be {len(PPOConfig().hidden_dims)} positive widths, got {self.residual_dims}")
+        require(self.pace in ("clock", "adaptive"), f"pace must be 'clock' or 'adaptive', got '{self.pace}'")
+        require(0 < self.adaptive_step <= 1, f"adaptive_step must be in (0, 1], got {self.adaptive_step}")
+        require(self.adaptive_fall_rate > 0, f"adaptive_fall_rate must be > 0 falls per second, got {self.adaptive_fall_rate}")
         require(0 <= self.finetune_noise <= 1, f"finetune_noise must be a factor in [0, 1] of Table II's, got {self.finetune_noise}")
 
     def steps_per_env(self, dt: float) -> int:
@@ -110,11 +128,21 @@ class DistillConfig:
         p = min(max(progress, 0.0), 1.0)
         return self.learning_rate + (self.final_learning_rate - self.learning_rate) * p
 
-    def finetune_ppo(self, ppo: PPOConfig | None = None) -> PPOConfig:
-        """PPO settings of the fine-tuning stage: those of plain PPO with a small initial action noise
-        and learning rate."""
+    def student_ppo(self, ppo: PPOConfig | None = None) -> PPOConfig:
+        """The distilled actor's settings: those of plain PPO with a small initial action noise and
+        learning rate."""
         return dataclasses.replace(ppo or PPOConfig(), init_std=self.finetune_std,
                                    learning_rate=self.finetune_learning_rate)
+
+    def finetune_ppo(self, ppo: PPOConfig | None = None) -> PPOConfig:
+        """PPO settings of the fine-tuning stage: the student's, its hidden layers widened by the
+        residual units when `finetune` is "residual"."""
+        student = self.student_ppo(ppo)
+        if self.finetune == "full":
+            return student
+        from opt2skill.rl.residual import widened
+
+        return dataclasses.replace(student, hidden_dims=widened(student.hidden_dims, self.residual_dims))
 
 
 def distillation_tracking_config(config: TrackingConfig, distill: DistillConfig) -> TrackingConfig:

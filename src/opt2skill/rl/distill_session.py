@@ -41,10 +41,11 @@ from opt2skill.expert.acting import EnvExpert
 from opt2skill.folder_lock import folder_lock
 from opt2skill.output_paths import check_output_dir
 from opt2skill.provenance import provenance
-from opt2skill.rl import checkpoint
+from opt2skill.rl import checkpoint, residual
 from opt2skill.rl.anchor import ExpertAnchor
 from opt2skill.rl.distill import Distiller
 from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
+from opt2skill.rl.pace import AdaptivePace
 from opt2skill.rl.policy import build_actor
 from opt2skill.rl.run import RunSpec, check_run, differences, open_run, trim_progress
 from opt2skill.rl.best import HeldOutJudge
@@ -111,7 +112,7 @@ def distill_stage(request: TrainRequest, dataset, robot, config, distill: Distil
     bank = ReferenceBank.from_dataset(robot, dataset, env_config.observations.end_effectors)
     with TrackingEnv(robot, bank, env_config, request.num_envs, seed=request.seed, threads=threads) as env:
         torch.manual_seed(request.seed)
-        actor = build_actor(distill.finetune_ppo(), env.actor_dim, env.critic_dim, env.nu)
+        actor = build_actor(distill.student_ppo(), env.actor_dim, env.critic_dim, env.nu)
         expert = dataset_expert(env, dataset, distill)
         distiller = Distiller(env, expert, actor, distill, stage, seed=request.seed)
         distiller.judge = judge
@@ -139,9 +140,13 @@ def set_actor_frozen(trainer: Trainer, frozen: bool) -> None:
 
 
 def start_from_distilled(trainer: Trainer, distilled: dict[str, Any]) -> None:
-    """Load the distilled actor into PPO; give the critic's normalizer statistics of the states the
-    distilled actor visits (one rollout's worth of steps), then start new episodes."""
-    trainer.alg.actor.load_state_dict(distilled["actor_state_dict"])
+    """Load the distilled actor into PPO (as the frozen base of a residual actor if the trainer's is
+    one); give the critic's normalizer statistics of the states the distilled actor visits (one
+    rollout's worth of steps), then start new episodes."""
+    if trainer.ppo.hidden_dims == residual.hidden_dims(distilled["actor_state_dict"]):
+        trainer.alg.actor.load_state_dict(distilled["actor_state_dict"])
+    else:
+        residual.load_base(trainer.alg.actor, distilled["actor_state_dict"])
     trainer.elapsed = distilled["elapsed"]
     observations = []
     with torch.inference_mode():
@@ -163,6 +168,10 @@ def dataset_expert(env: TrackingEnv, dataset, distill: DistillConfig) -> EnvExpe
 def finetune_trainer(env: TrackingEnv, dataset, distill: DistillConfig, run: Path | None, seed: int) -> Trainer:
     """The PPO stage's trainer on `env` (the fine-tuning config's), with the expert anchor if enabled."""
     trainer = Trainer(env, distill.finetune_ppo(), run, seed=seed)
+    if distill.finetune == "residual":
+        residual.freeze_base(trainer.alg.actor, distill.student_ppo().hidden_dims)
+    if distill.pace == "adaptive":
+        trainer.pace = AdaptivePace(distill.adaptive_step, distill.adaptive_fall_rate)
     if distill.anchor_updates > 0:
         trainer.anchor = ExpertAnchor(dataset_expert(env, dataset, distill), trainer.alg.actor, distill, seed=seed)
     return trainer

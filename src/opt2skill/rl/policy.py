@@ -6,6 +6,7 @@ configuration, so evaluation, export (ONNX, `Policy.module`) and distillation re
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import DataError
 from opt2skill.rl import checkpoint
 from opt2skill.rl.config import PPOConfig
+from opt2skill.rl.residual import hidden_dims
 from opt2skill.rl.run import RunSpec, read_spec
 
 
@@ -54,7 +56,10 @@ def load_policy(run: Path, path: Path | None = None) -> tuple[Policy, RunSpec]:
     checkpoint.check_identity(Path(path), data, checkpoint.identity(
         spec.robot, spec.robot_hash, spec.tracking.task, spec.tracking.ablation, obs.history, obs.stride))
     dims = data["dims"]
-    actor = build_actor(spec.ppo, dims["actor"], dims["critic"], dims["actions"])
-    # A PPO checkpoint holds rsl_rl's state; a distillation stage's holds the actor alone.
-    actor.load_state_dict(data["alg"]["actor_state_dict"] if "alg" in data else data["actor_state_dict"])
+    # A PPO checkpoint holds rsl_rl's state; a distillation stage's holds the actor alone. Its widths are
+    # read from the weights: a residual run's distillation stage has narrower layers than its PPO stage.
+    state = data["alg"]["actor_state_dict"] if "alg" in data else data["actor_state_dict"]
+    ppo = dataclasses.replace(spec.ppo, hidden_dims=hidden_dims(state))
+    actor = build_actor(ppo, dims["actor"], dims["critic"], dims["actions"])
+    actor.load_state_dict(state)
     return Policy(actor, data["iteration"], data["env_steps"]), spec

@@ -60,6 +60,9 @@ class Trainer:
         # Optional `rl.best.HeldOutJudge`: judges the actor on held-out references every `every`
         # iterations and at the end, keeping the best checkpoint.
         self.judge = None
+        # Optional `rl.pace.AdaptivePace`: the curriculum advances with the policy's failure rate
+        # instead of with the environment steps.
+        self.pace = None
         torch.manual_seed(seed)
         self.venv = TrackingVecEnv(env, ppo.reward_scale or None)
         self.alg = build_algorithm(self.venv, ppo)
@@ -84,6 +87,7 @@ class Trainer:
             "dims": {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu},
             "identity": self.identity(),
             **({"anchor": self.anchor.state()} if self.anchor is not None else {}),
+            **({"pace": self.pace.state()} if self.pace is not None else {}),
         }
 
     def identity(self) -> dict[str, Any]:
@@ -107,6 +111,8 @@ class Trainer:
         torch.set_rng_state(data["torch_rng"])
         if self.anchor is not None and "anchor" in data:
             self.anchor.restore(data["anchor"])
+        if self.pace is not None and "pace" in data:
+            self.pace.restore(data["pace"])
         self.env.rng.bit_generator.state = data["env_rng"]
         self.env.set_progress(data["progress"])
         self.env.reset()
@@ -199,8 +205,12 @@ class Trainer:
         last_save, figures = time.monotonic(), {}
         try:
             while self.iteration < last:
-                self.env.set_progress(self.env_steps / (total_iterations * self.batch))
+                if self.pace is None:
+                    self.env.set_progress(self.env_steps / (total_iterations * self.batch))
                 figures = self.train_iteration()
+                if self.pace is not None:  # the next iteration's world, from this one's failures
+                    self.env.set_progress(self.pace.advance(self.env.progress, figures,
+                                                            self.batch * self.env.sim.policy_dt))
                 self._log(figures, writer)
                 if bar is not None:
                     bar.update(self.batch)
