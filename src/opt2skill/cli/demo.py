@@ -108,6 +108,7 @@ def run_demo(s: DemoSettings) -> dict[str, Path]:
     plot = plot_tracking(rollouts[0].reference, rollouts[0].tracked, eval_dir / "plots" / f"track_{first.index:06d}.png",
                          title=f"{report.title()}, reference #{first.index}", robot_config=find_robot_config(s.robot))
     print_report(report, [*paths, plot])
+    shipped_paths = _evaluate_shipped(s.task, request, out / f"pretrained-{s.task}")
 
     stage("4. export (ONNX) and the standalone 2 kHz player")
     onnx_path, _ = export_policy(run, out / "policy.onnx")
@@ -124,6 +125,8 @@ def run_demo(s: DemoSettings) -> dict[str, Path]:
     outputs = {"training references": train_dir, "held-out references": test_dir, "run (checkpoints, logs)": run,
                "evaluation table": paths[1], "tracking plot": plot, "ONNX policy": onnx_path,
                "sim-to-sim table": player_paths[1], "video": video}
+    if shipped_paths:
+        outputs[f"shipped '{s.task}' policy on the same references"] = shipped_paths[1]
     ends = [t for _, t in starts[1:]] + [time.perf_counter()]
     console.rule("[bold]done")
     console.print(figures_table("time per stage", [(name, f"{end - t:.0f} s") for (name, t), end in zip(starts, ends)],
@@ -131,6 +134,30 @@ def run_demo(s: DemoSettings) -> dict[str, Path]:
     for what, where in outputs.items():  # plain lines: a table would cut long paths
         console.print(f"{what}: {where}", soft_wrap=True)
     return outputs
+
+
+def _evaluate_shipped(task: str, request, out: Path) -> list[Path]:
+    """The policy shipped for `task` (`opt2skill.pretrained`), if any, on the demo's held-out references,
+    beside the demo's own few-minute policy: what hours of training give. Its report's paths."""
+    import dataclasses
+
+    from opt2skill.cli.eval import print_report
+    from opt2skill.eval.evaluate import evaluate
+    from opt2skill.pretrained import names, pretrained_run
+
+    if task not in names():
+        return []
+    shipped = dataclasses.replace(request, run=pretrained_run(task))
+    console.print(f"[bold]the policy shipped with opt2skill for '{task}' (opt2skill eval --pretrained {task}), "
+                  "on the same references:", soft_wrap=True)
+    try:
+        report, _ = evaluate(shipped)
+    except DataError as exc:  # e.g. the demo fell back to its training references, which the shipped one never saw
+        console.print(f"[yellow]not evaluated: {exc}[/]", soft_wrap=True)
+        return []
+    paths = list(report.write(out))
+    print_report(report, paths)
+    return paths
 
 
 def _spec(run: Path):

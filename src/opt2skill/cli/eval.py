@@ -28,6 +28,31 @@ CHECKPOINT = typer.Option(None, help="A checkpoint file of the run (default: the
                           "holds the distilled actor of an --init distill run.")
 
 
+PRETRAINED = typer.Option(None, "--pretrained", help="A policy shipped with opt2skill instead of a RUN (e.g. walk); "
+                          "its files are checked against their shipped hashes.")
+
+
+def policy_run(run: Path | None, pretrained: str | None, checkpoint: Path | None = None,
+               dataset: Path | None = None, references: bool = True) -> tuple[Path, Path | None]:
+    """The run directory to read (RUN, or the shipped policy's) and, for a shipped policy, the folder
+    in the working directory its outputs go to by default (nothing is written into the package).
+    `references`: the command rolls the policy out on references (`dataset`, which a shipped policy
+    needs given)."""
+    if (run is None) == (pretrained is None):
+        raise ConfigError("give a RUN directory or --pretrained NAME (one of them)")
+    if pretrained is None:
+        return Path(run), None
+    from opt2skill.pretrained import pretrained_run
+
+    if checkpoint is not None:
+        raise ConfigError("--checkpoint names a checkpoint of a RUN; a --pretrained policy has one")
+    shipped = pretrained_run(pretrained)
+    if references and dataset is None:
+        raise ConfigError(f"--pretrained {pretrained} ships without its training references: give --dataset DIR "
+                          f"(references of its task, e.g. opt2skill generate walk --seed 1 --out data/walk_test)")
+    return shipped, Path(f"pretrained-{pretrained}")
+
+
 def _indices(text: str | None) -> tuple[int, ...]:
     if not text:
         return ()
@@ -67,7 +92,8 @@ def print_report(report, paths=()) -> None:
 
 @app.command("eval")
 def eval_command(
-    run: Path = typer.Argument(..., help="Run directory (opt2skill train --out)."),
+    run: Path = typer.Argument(None, help="Run directory (opt2skill train --out); or --pretrained NAME."),
+    pretrained: str = PRETRAINED,
     dataset: Path = typer.Option(None, "--dataset", help=DATASET_HELP),
     n: int = typer.Option(20, "--n", help="References to evaluate on (the first N of the split)."),
     split: str = SPLIT,
@@ -86,13 +112,15 @@ def eval_command(
 
     if plots < 0:
         raise ConfigError(f"--plots must be >= 0, got {plots}")
+    run, elsewhere = policy_run(run, pretrained, checkpoint, dataset)
     spec = read_spec(run)  # a clear error for a directory that is not a run, before the slow imports
     from opt2skill.eval.evaluate import EvalRequest, evaluate, load_run_policy
     from opt2skill.eval.plots import plot_tracking
 
     request = EvalRequest(run=run, dataset=dataset, n=n, split=split, indices=_indices(indices), randomize=randomize,
                           noise=noise, seed=seed, checkpoint=checkpoint, threads=threads)
-    out = check_output_dir(out or request.default_out(spec))
+    default = request.default_out(spec)
+    out = check_output_dir(out or (elsewhere / "eval" / default.name if elsewhere else default))
     policy = load_run_policy(run, checkpoint)  # the checkpoint checked before anything is written
     with folder_lock(out):
         report, rollouts = evaluate(request, progress=not quiet, run=policy)
@@ -109,13 +137,16 @@ def eval_command(
 
 @app.command()
 def export(
-    run: Path = typer.Argument(..., help="Run directory (opt2skill train --out)."),
+    run: Path = typer.Argument(None, help="Run directory (opt2skill train --out); or --pretrained NAME."),
     out: Path = typer.Option(..., "--out", help="ONNX file to write (e.g. policy.onnx)."),
     checkpoint: Path = CHECKPOINT,
+    pretrained: str = PRETRAINED,
 ) -> None:
     """Write the actor as ONNX (normalization folded in) with the metadata a robot-side program needs."""
     check_output_file(out, suffix=".onnx")  # before the slow imports
     from opt2skill.deploy.export import export_policy
+
+    run, _ = policy_run(run, pretrained, checkpoint, references=False)
 
     path, meta = export_policy(run, out, checkpoint)
     h = meta.history
@@ -126,7 +157,8 @@ def export(
 
 @app.command("deploy-sim")
 def deploy_sim(
-    policy: Path = typer.Argument(..., help="An exported policy (opt2skill export)."),
+    policy: Path = typer.Argument(None, help="An exported policy (opt2skill export); or --pretrained NAME."),
+    pretrained: str = PRETRAINED,
     dataset: Path = typer.Option(..., "--dataset", help="References (a dataset directory)."),
     n: int = typer.Option(20, "--n", help="References to play (the first N of the split)."),
     split: str = SPLIT,
@@ -143,6 +175,13 @@ def deploy_sim(
     from opt2skill.deploy.sim_to_sim import deploy_sim as run_player
 
     config = PlayerConfig(physics_dt=physics_dt, latency=latency, noise=noise, seed=seed)
+    if (policy is None) == (pretrained is None):
+        raise ConfigError("give an exported POLICY file or --pretrained NAME (one of them)")
+    if pretrained is not None:
+        from opt2skill.pretrained import pretrained_onnx
+
+        policy = pretrained_onnx(pretrained)
+        out = out or Path(f"pretrained-{pretrained}") / f"deploy-sim-{dataset.name}"
     out = check_output_dir(out or policy.with_suffix("").parent / f"{policy.stem}-deploy-sim-{dataset.name}")
     with folder_lock(out):
         report, _ = run_player(policy, dataset, n=n, split=split, indices=_indices(indices), config=config,
@@ -191,7 +230,8 @@ def compare(
 
 @app.command()
 def sweep(
-    run: Path = typer.Argument(..., help="Run directory (opt2skill train --out)."),
+    run: Path = typer.Argument(None, help="Run directory (opt2skill train --out); or --pretrained NAME."),
+    pretrained: str = PRETRAINED,
     terrain: str = typer.Option(..., "--terrain", help="stairs (step heights) or slope (angles)."),
     step: float = typer.Option(None, help="Grid step: m of step height (default 0.02) or degrees (default 2.5)."),
     maximum: float = typer.Option(None, "--max", help="Largest setting: m (default 0.16) or degrees (default 20)."),
@@ -228,10 +268,11 @@ def sweep(
     from opt2skill.eval.evaluate import load_run_policy, training_fingerprints
     from opt2skill.eval.references import check_metric_fields
 
-    out = check_output_dir(out or Path(run) / "eval" / f"sweep-{terrain}")
+    run, elsewhere = policy_run(run, pretrained, checkpoint, dataset)
+    out = check_output_dir(out or (elsewhere or Path(run)) / "eval" / f"sweep-{terrain}")
     source = load_run_policy(run, checkpoint)
     ds = Dataset.open(dataset or source.spec.dataset)
-    position, relation = choose_reference(ds, training_fingerprints(source.spec), index)
+    position, relation = choose_reference(ds, training_fingerprints(source.spec, run), index)
     check_metric_fields(ds, source.spec.tracking.task, position)
     reference = ds[position]
     params = ", ".join(f"{k}={v:.3g}" for k, v in reference.params.items())

@@ -106,18 +106,23 @@ def train(
 
 @app.command()
 def play(
-    run: Path = typer.Argument(None, help="Run directory (opt2skill train --out); optional with --expert --dataset."),
+    run: Path = typer.Argument(None, help="Run directory (opt2skill train --out); optional with --expert --dataset "
+                               "or --pretrained NAME --dataset."),
+    pretrained: str = typer.Option(None, "--pretrained", help="A policy shipped with opt2skill instead of a RUN "
+                                   "(e.g. walk); needs --dataset."),
     n: int = typer.Option(4, "--n", help="References to roll out (the dataset's first N)."),
     randomize: bool = typer.Option(False, "--randomize", help="Keep Table II randomization on."),
     noise: bool = typer.Option(False, "--noise", help="Keep observation noise on."),
     seed: int = typer.Option(0, help="Seed of the rollouts."),
     expert: bool = typer.Option(False, "--expert", help="Roll out the optimizer's feedback expert instead of the policy."),
-    dataset: Path = typer.Option(None, "--dataset", help="With --expert: the references (default: the run's dataset)."),
+    dataset: Path = typer.Option(None, "--dataset", help="The references (default: the run's dataset)."),
 ) -> None:
-    """Roll the newest checkpoint (or the optimizer's feedback expert) out on a few references
-    (deterministic actions, from frame 0)."""
+    """Roll a run's policy (its best checkpoint if it kept one, else the newest), a shipped policy, or
+    the optimizer's feedback expert out on a few references (deterministic actions, from frame 0)."""
     from opt2skill.errors import ConfigError
 
+    if expert and pretrained is not None:
+        raise ConfigError("--expert plays the optimizer's feedback law, not a --pretrained policy: give one of them")
     if expert:
         from opt2skill.expert.play import play_expert
         from opt2skill.rl.run import read_spec
@@ -128,11 +133,15 @@ def play(
         console.print(f"{dataset or run}: the optimizer's feedback expert (PD targets at 200 Hz)", soft_wrap=True)
         _print_rollouts(result.motions, result.errors)
         return
+    if expert is False and pretrained is not None:
+        from opt2skill.cli.eval import policy_run
+
+        run, _ = policy_run(run, pretrained, dataset=dataset)
     if run is None:
-        raise ConfigError("give a RUN directory, or --expert --dataset DIR")
+        raise ConfigError("give a RUN directory, --pretrained NAME --dataset DIR, or --expert --dataset DIR")
     from opt2skill.rl.session import play as run_play
 
-    result = run_play(run, n=n, randomize=randomize, noise=noise, seed=seed)
+    result = run_play(run, n=n, randomize=randomize, noise=noise, seed=seed, dataset=dataset)
     console.print(f"{run}: checkpoint of iteration {result.policy.iteration} "
                   f"({result.policy.env_steps:,} environment steps)", soft_wrap=True)
     _print_rollouts(result.motions, result.errors)

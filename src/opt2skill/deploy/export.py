@@ -121,7 +121,7 @@ def metadata(source: RunPolicy, run: Path) -> dict[str, Any]:
     unknown = [name for name in actor if name not in TERMS]
     if unknown:
         raise DataError(f"the policy observes {unknown}, which the standalone player cannot build")
-    fingerprints = training_fingerprints(spec)
+    fingerprints = training_fingerprints(spec, run)
     invocations = read_run(run).get("invocations", [])
     return {
         "format": FORMAT, "format_version": FORMAT_VERSION,

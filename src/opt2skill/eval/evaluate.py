@@ -9,6 +9,7 @@ noise are off unless asked for.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import time
 from dataclasses import dataclass
@@ -100,17 +101,31 @@ def load_run_policy(run: Path, checkpoint: Path | None = None) -> RunPolicy:
     return RunPolicy(policy, spec, robot, info)
 
 
-def training_fingerprints(spec: RunSpec) -> list[str] | None:
+def training_fingerprints(spec: RunSpec, run: Path | None = None) -> list[str] | None:
     """Fingerprints of the references a run trained on: its dataset's first `spec.trajectories`
-    accepted trajectories (None when that dataset is gone or was changed since). A file that has
-    gone bad since is left out: only a reference with its very parameters could be misjudged."""
+    accepted trajectories, or, when that dataset is gone or was changed since, those the run
+    directory records (a shipped policy's, `opt2skill.pretrained`); None when neither is there. A
+    file that has gone bad since is left out: only a reference with its very parameters could be
+    misjudged."""
     try:
         dataset = Dataset.open(spec.dataset)
     except DataError:
-        return None
-    if dataset.identity != spec.dataset_identity or len(dataset) < spec.trajectories:
-        return None
+        dataset = None
+    if dataset is None or dataset.identity != spec.dataset_identity or len(dataset) < spec.trajectories:
+        return recorded_fingerprints(run)
     return [position_fingerprint(dataset, p) for p in dataset.sound(range(spec.trajectories))]
+
+
+def recorded_fingerprints(run: Path | None) -> list[str] | None:
+    from opt2skill.pretrained import FINGERPRINTS
+
+    path = Path(run) / FINGERPRINTS if run is not None else None
+    if path is None or not path.is_file():
+        return None
+    try:
+        return list(json.loads(path.read_text())["fingerprints"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DataError(f"{path} is unreadable ({exc})") from None
 
 
 def open_references(request: EvalRequest, run: RunPolicy) -> tuple[Dataset, ReferenceSet]:
@@ -118,7 +133,7 @@ def open_references(request: EvalRequest, run: RunPolicy) -> tuple[Dataset, Refe
     if dataset.identity.get("robot_hash") not in (None, run.robot.hash):
         raise DataError(f"dataset {dataset.root} was made for another '{dataset.identity.get('robot')}' robot file "
                         f"than run {request.run} (hash {str(dataset.identity.get('robot_hash'))[:12]})")
-    refs = select_references(dataset, training_fingerprints(run.spec), request.n, request.split,
+    refs = select_references(dataset, training_fingerprints(run.spec, run.info["run"]), request.n, request.split,
                              list(request.indices), what=f"run {request.run}")
     check_metric_fields(dataset, run.spec.tracking.task, refs.positions[0])
     return dataset, refs

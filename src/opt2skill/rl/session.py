@@ -177,28 +177,33 @@ class PlayResult:
     errors: list[dict[str, float]]  # eval.metrics tracking errors per motion
 
 
-def play(run: Path, n: int = 4, randomize: bool = False, noise: bool = False, seed: int = 0) -> PlayResult:
-    """Roll the newest checkpoint out on the run's first `n` references from frame 0, deterministic
-    actions, randomization and noise off unless asked."""
+def play(run: Path, n: int = 4, randomize: bool = False, noise: bool = False, seed: int = 0,
+         dataset: Path | None = None) -> PlayResult:
+    """Roll the run's policy (its best checkpoint if it kept one, else the newest) out on the first `n`
+    references of its dataset (or of `dataset`) from frame 0, deterministic actions, randomization and
+    noise off unless asked."""
     from opt2skill.eval.metrics import tracking_errors
 
     if n < 1:
         raise ConfigError(f"--n must be >= 1, got {n}")
-    policy, spec = load_policy(run)
-    dataset, robot = open_dataset(Path(spec.dataset))
-    if dataset.identity != spec.dataset_identity:
+    path = checkpoint.policy_default(run)
+    policy, spec = load_policy(run, path)
+    references, robot = open_dataset(Path(dataset or spec.dataset))
+    if dataset is None and references.identity != spec.dataset_identity:
         raise DataError(f"the dataset at {spec.dataset} is no longer the one run {run} was trained on")
-    n = min(n, len(dataset))
+    if references.identity.get("task") != spec.tracking.task or robot.hash != spec.robot_hash:
+        raise DataError(f"dataset {references.root} holds '{references.identity.get('task')}' references of robot "
+                        f"'{robot.name}'; the policy tracks '{spec.tracking.task}' on '{spec.robot}'")
+    n = min(n, len(references))
     subset = np.arange(n)
     config = evaluation_config(spec.tracking, randomize=randomize, noise=noise)
-    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors, subset=subset)
+    bank = ReferenceBank.from_dataset(robot, references, config.observations.end_effectors, subset=subset)
     set_threads(None)
     with TrackingEnv(robot, bank, config, n, seed=seed) as env:
         env.set_progress(1.0)
         motions = track(env, policy, np.arange(n))
     errors = []
     for motion in motions:
-        reference = dataset[motion.position]
-        fell = motion.fell
-        errors.append(tracking_errors(reference, motion.record(robot, reference), fell=fell).as_dict())
+        reference = references[motion.position]
+        errors.append(tracking_errors(reference, motion.record(robot, reference), fell=motion.fell).as_dict())
     return PlayResult(policy, spec, motions, errors)

@@ -1,0 +1,92 @@
+"""Shipped policies (`--pretrained NAME`): a real trained run packed into a package folder loads,
+knows its training references without their dataset, evaluates, plays and exports like a run, and
+a tampered or unknown one is refused with one clear error."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from eval_support import CLI, shared_run
+
+from opt2skill import pretrained
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.eval.evaluate import EvalRequest, evaluate, load_run_policy
+
+
+@pytest.fixture(scope="module")
+def shipped(tmp_path_factory):
+    run, dataset = shared_run(tmp_path_factory)
+    root = tmp_path_factory.mktemp("pretrained")
+    # The training dataset is moved away afterwards: a shipped policy never has it.
+    hidden = tmp_path_factory.mktemp("hidden") / "squats"
+    shutil.copytree(dataset, hidden)
+    copy = tmp_path_factory.mktemp("run") / "run"
+    shutil.copytree(run, copy)
+    spec_path = copy / "run.json"
+    spec = json.loads(spec_path.read_text())
+    spec["identity"]["dataset"] = str(hidden)
+    spec_path.write_text(json.dumps(spec))
+    target = pretrained.pack(copy, "squat", root=root, note="test")
+    shutil.rmtree(hidden)
+    return root, target, run, dataset
+
+
+def test_a_packed_run_loads_and_knows_its_training_references(shipped):
+    root, target, run, dataset = shipped
+    assert pretrained.names(root) == ["squat"]
+    directory = pretrained.pretrained_run("squat", root)
+    manifest = json.loads((directory / pretrained.MANIFEST).read_text())
+    assert set(manifest["files"]) == {"run.json", "best/model.pt", "training_fingerprints.json", "policy.onnx"}
+    assert not (directory / "checkpoints").exists()  # the actor alone, no optimizer or critic
+    source, original = load_run_policy(directory), load_run_policy(run)
+    obs = np.random.default_rng(0).normal(size=(3, source.policy.obs_dim)).astype(np.float32)
+    np.testing.assert_array_equal(source.policy(obs), original.policy(obs))
+    # Its training dataset is gone, yet the evaluation knows these references were trained on.
+    report, _ = evaluate(EvalRequest(run=directory, dataset=dataset, n=2, split="training"), progress=False)
+    assert len(report.results) == 2 and all(r.seen for r in report.results)
+    with pytest.raises(DataError, match="no held-out references"):
+        evaluate(EvalRequest(run=directory, dataset=dataset, n=2), progress=False)
+
+
+def test_a_tampered_missing_or_unknown_policy_is_refused(shipped, tmp_path):
+    root, target, _, _ = shipped
+    with pytest.raises(ConfigError, match="unknown pretrained policy 'walk'; shipped: squat"):
+        pretrained.pretrained_run("walk", root)
+    tampered = tmp_path / "root"
+    shutil.copytree(root, tampered)
+    model = tampered / "squat" / "best" / "model.pt"
+    data = bytearray(model.read_bytes())
+    data[-100] ^= 0xFF
+    model.write_bytes(bytes(data))
+    with pytest.raises(DataError, match=r"best/model.pt was modified \(sha256 .*\); reinstall opt2skill"):
+        pretrained.pretrained_run("squat", tampered)
+    (tampered / "squat" / "policy.onnx").unlink()
+    model.write_bytes((target / "best" / "model.pt").read_bytes())
+    with pytest.raises(DataError, match="policy.onnx is missing"):
+        pretrained.pretrained_run("squat", tampered)
+
+
+@pytest.mark.skipif("walk" not in pretrained.names(), reason="no walking policy shipped")
+def test_the_shipped_walking_policy_is_intact_and_needs_references(tmp_path):
+    directory = pretrained.pretrained_run("walk")
+    source = load_run_policy(directory)
+    assert source.spec.tracking.task == "walk" and source.robot.name == "digit"
+    assert len(json.loads((directory / pretrained.FINGERPRINTS).read_text())["fingerprints"]) >= 50
+    for command in (["eval", "--pretrained", "walk"], ["sweep", "--pretrained", "walk", "--terrain", "stairs"],
+                    ["play", "--pretrained", "walk"]):
+        result = subprocess.run([CLI, *command], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+        assert result.returncode != 0 and "--pretrained walk ships without its training references: give --dataset" \
+            in result.stderr + result.stdout, command
+    result = subprocess.run([CLI, "eval", "--pretrained", "walk", str(directory), "--dataset", "x"],
+                            capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert result.returncode != 0 and "give a RUN directory or --pretrained NAME (one of them)" in result.stderr + result.stdout
+    out = tmp_path / "walk.onnx"
+    result = subprocess.run([CLI, "export", "--pretrained", "walk", "--out", str(out)], capture_output=True, text=True,
+                            cwd=tmp_path, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert list(tmp_path.iterdir()) == [out]  # nothing else written, nothing written into the package
