@@ -1,6 +1,6 @@
 """Kill-and-resume soak: `generate` and `train` killed with SIGKILL at random moments, then resumed.
 
-    python benchmarks/kill_resume_soak.py [--kills 20] [--train-kills 20] [--task squat] [--n 30]
+    python benchmarks/kill_resume_soak.py [--kills 20] [--train-kills 20] [--task squat] [--n 60]
                                           [--iterations 40] [--out DIR] [--seed 0]
 
 1. An uninterrupted `generate TASK --n N` is the reference. Its wall time and that of the same
@@ -133,7 +133,7 @@ def main() -> None:
     parser.add_argument("--kills", type=int, default=20, help="SIGKILLs of generate")
     parser.add_argument("--train-kills", type=int, default=20, help="SIGKILLs of train")
     parser.add_argument("--task", default="squat")
-    parser.add_argument("--n", type=int, default=30, help="trajectories generated")
+    parser.add_argument("--n", type=int, default=60, help="trajectories generated")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--iterations", type=int, default=40, help="PPO iterations of the soak run")
     parser.add_argument("--out", type=Path, default=None, help="work folder (default: a temporary one)")
