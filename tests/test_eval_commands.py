@@ -18,6 +18,7 @@ from opt2skill.data.reader import Dataset
 from opt2skill.deploy.export import export_policy
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.eval.compare import compare
+from opt2skill.folder_lock import folder_lock
 from opt2skill.eval.evaluate import EvalRequest, evaluate, load_run_policy
 from opt2skill.eval.metrics import METRICS
 from opt2skill.eval.sweep import SweepSettings, default_values
@@ -74,6 +75,13 @@ def test_compare_two_runs_on_the_same_references(run_and_data, tmp_path):
     assert json.loads(cached.read_text())["created"] == stamp and again.reports[1].created == stamp
     stored = [np.nan if p is None else p for v in cmp["wilcoxon_p"].values() for p in v.values()]
     np.testing.assert_allclose([p for v in again.p_values.values() for p in v.values()], stored, equal_nan=True)
+    # A run's eval folder that another command is writing: compared all the same, its cache left alone.
+    busy = tmp_path / "busy"
+    shutil.copytree(older, busy, ignore=shutil.ignore_patterns("eval"))
+    folder = busy / "eval" / "squat3-given"
+    with folder_lock(folder):
+        during = compare([run, busy], split="training", n=3, progress=False)
+    assert len(during.reports) == 2 and not (folder / "eval.json").exists()
 
 
 def test_sweep_on_a_tiny_grid(run_and_data, tmp_path):

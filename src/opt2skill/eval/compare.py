@@ -12,6 +12,7 @@ from typing import Any
 from opt2skill.data.atomic import atomic_path, write_json
 from opt2skill.data.reader import Dataset
 from opt2skill.errors import ConfigError, DataError
+from opt2skill.folder_lock import folder_lock
 from opt2skill.eval.evaluate import EvalRequest, evaluate, load_run_policy, training_fingerprints
 from opt2skill.eval.references import ReferenceSet, check_metric_fields, select_references
 from opt2skill.eval.report import PAPER_ROWS, TABLE_III, TABLE_IV, EvalReport, header, label, mean_se
@@ -91,7 +92,7 @@ def compare(runs: list[Path], dataset: Path | None = None, n: int = 20, split: s
         cache = request.default_out(policy.spec) / "eval.json"
         report, rollouts = evaluate(request, progress=progress, reuse=cache, run=policy)
         if rollouts is not None:
-            report.write(cache.parent)
+            _cache(report, cache.parent)
         reports.append(report)
     first = reports[0]
     p_values = {f"{r.title()} vs {first.title()}": paired_wilcoxon([x.errors for x in r.results],
@@ -99,6 +100,17 @@ def compare(runs: list[Path], dataset: Path | None = None, n: int = 20, split: s
                 for r in reports[1:]}
     refs = dataclasses.replace(refs, split="held-out from every run" if split == "held-out" and not indices else refs.split)
     return Comparison(refs, reports, p_values)
+
+
+def _cache(report, folder: Path) -> None:
+    """Keep a run's report in its eval folder for the next comparison, under the folder's lock like
+    any writer of it; a folder another command is writing (or one that cannot be written) is left
+    alone: the cache only saves time."""
+    try:
+        with folder_lock(folder):
+            report.write(folder)
+    except DataError:
+        pass
 
 
 def _p(p: float) -> str:
