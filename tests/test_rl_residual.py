@@ -80,10 +80,13 @@ def test_ppo_moves_only_the_residual_and_the_action_starts_as_the_distilled_one(
 def test_adaptive_pace_widens_only_while_the_worlds_rarely_fail():
     pace = AdaptivePace(step=0.1, max_fall_rate=0.05, horizon=1)
     calm = {"terminations/time_out": 5.0, "terminations/fall": 0.0}
-    rough = {"terminations/time_out": 0.0, "terminations/fall": 2.0, "terminations/xy_error": 1.0}
+    rough = {"terminations/time_out": 0.0, "terminations/fall": 2.0, "terminations/orientation_error": 1.0,
+             "terminations/xy_error": 4.0}
     assert pace.advance(0.0, calm, world_seconds=10.0) == pytest.approx(0.1)  # reference ends are no failure
-    assert pace.advance(0.1, rough, world_seconds=10.0) == pytest.approx(0.1)  # 0.3 failures/s: held
-    assert pace.fall_rate == pytest.approx(0.3)
+    assert pace.advance(0.1, rough, world_seconds=10.0) == pytest.approx(0.1)  # 0.3 falls/s: held
+    assert pace.fall_rate == pytest.approx(0.3)  # drifting off the reference is not a fall
+    drifting = {"terminations/xy_error": 5.0}
+    assert AdaptivePace(step=0.1, max_fall_rate=0.05).advance(0.0, drifting, 10.0) == pytest.approx(0.1)
     assert pace.advance(0.95, calm, world_seconds=10.0) == 1.0  # capped
     smoothed = AdaptivePace(step=0.1, max_fall_rate=0.05, horizon=10)
     smoothed.advance(0.0, rough, 10.0)

@@ -4,8 +4,10 @@ The paper's curriculum (noise, penalties, and here the width of Table II's range
 environment steps. After distillation that pace is a guess: widen too fast and PPO wrecks the
 distilled actor (docs/distill.md), too slow and the budget ends before the world is Table II's.
 `AdaptivePace` widens the world only while the policy copes with it: after every iteration whose
-worlds failed (any termination but the reference's end) less often than `max_fall_rate` per
-second of experience, smoothed over about `horizon` iterations, the progress moves `step` on.
+worlds fell (lost height, orientation or stable physics) less often than `max_fall_rate` per second
+of experience, smoothed over about `horizon` iterations, the progress moves `step` on. Drifting off
+the reference (`xy_error`) ends a training episode but is not a fall, and evaluation does not count
+it either.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from typing import Any
 
 from opt2skill.envs import CAUSES
 
-FAILURES = tuple(c for c in CAUSES if c != "time_out")
+FAILURES = tuple(c for c in CAUSES if c not in ("time_out", "xy_error"))
 
 
 @dataclass
