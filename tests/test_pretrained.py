@@ -53,6 +53,18 @@ def test_a_packed_run_loads_and_knows_its_training_references(shipped):
         evaluate(EvalRequest(run=directory, dataset=dataset, n=2), progress=False)
 
 
+def test_the_demo_evaluates_a_shipped_policy_of_its_task_beside_its_own(shipped, tmp_path):
+    from opt2skill.cli.demo import _evaluate_shipped
+
+    root, _, run, dataset = shipped
+    request = EvalRequest(run=run, dataset=dataset, n=2, split="training")
+    [report_json, report_md] = _evaluate_shipped("squat", request, tmp_path / "shipped", root)
+    report = json.loads(report_json.read_text())
+    assert report["policy"]["run"] == str((root / "squat").resolve()) and len(report["trajectories"]) == 2
+    assert _evaluate_shipped("walk", request, tmp_path / "none", root) == []  # nothing shipped for it here
+    assert not (tmp_path / "none").exists()
+
+
 def test_a_tampered_missing_or_unknown_policy_is_refused(shipped, tmp_path):
     root, target, _, _ = shipped
     with pytest.raises(ConfigError, match="unknown pretrained policy 'walk'; shipped: squat"):

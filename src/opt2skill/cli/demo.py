@@ -136,18 +136,19 @@ def run_demo(s: DemoSettings) -> dict[str, Path]:
     return outputs
 
 
-def _evaluate_shipped(task: str, request, out: Path) -> list[Path]:
+def _evaluate_shipped(task: str, request, out: Path, root: Path | None = None) -> list[Path]:
     """The policy shipped for `task` (`opt2skill.pretrained`), if any, on the demo's held-out references,
     beside the demo's own few-minute policy: what hours of training give. Its report's paths."""
     import dataclasses
 
     from opt2skill.cli.eval import print_report
     from opt2skill.eval.evaluate import evaluate
-    from opt2skill.pretrained import names, pretrained_run
+    from opt2skill.pretrained import ROOT, names, pretrained_run
 
-    if task not in names():
+    root = root or ROOT
+    if task not in names(root):
         return []
-    shipped = dataclasses.replace(request, run=pretrained_run(task))
+    shipped = dataclasses.replace(request, run=pretrained_run(task, root), checkpoint=None)
     console.print(f"[bold]the policy shipped with opt2skill for '{task}' (opt2skill eval --pretrained {task}), "
                   "on the same references:", soft_wrap=True)
     try:
