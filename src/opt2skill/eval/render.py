@@ -18,8 +18,8 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import ConfigError
 from opt2skill.model.mujoco_model import load_spec
 from opt2skill.model.robot import Robot
-from opt2skill.sim.scene import TerrainScene
-from opt2skill.sim.terrain import Terrain
+from opt2skill.scene.ground import TerrainScene
+from opt2skill.scene.terrain import Terrain
 
 GHOST_RGBA = (0.2, 0.7, 1.0, 0.3)
 GHOST_PREFIX = "ghost/"

@@ -21,12 +21,12 @@ from mujoco import rollout
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
+from opt2skill.scene.ground import TerrainScene
+from opt2skill.scene.terrain import Flat, Terrain
 from opt2skill.sim.base import BatchedSim, SimConfig, SimStep
 from opt2skill.sim.delay import ActionDelay
 from opt2skill.sim.outputs import OutputDecoder
 from opt2skill.sim.params import NominalModel, WorldParams
-from opt2skill.sim.scene import TerrainScene
-from opt2skill.sim.terrain import Flat, Terrain
 
 FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
 CTRL = mujoco.mjtState.mjSTATE_CTRL.value
