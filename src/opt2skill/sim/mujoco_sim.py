@@ -224,10 +224,11 @@ class MujocoBatchedSim(BatchedSim):
 
         With c_f the lowest sole corner of foot f and h_f the highest terrain under it, the lift is
         max(max_f (h_f - c_f), min_f h_f): a stance foot (c = 0) lands on the highest point under it,
-        a swing foot keeps its clearance. On the flat plane it is 0.
+        a swing foot keeps its clearance. On the flat plane it is 0, and so it is for a world whose
+        `lift` is off (its state was made on this terrain and already stands on it).
         """
         terrain = self.terrains[int(self._params.terrain[world])]
-        if isinstance(terrain, Flat):
+        if isinstance(terrain, Flat) or not self._params.lift[world]:
             return 0.0
         mujoco.mj_kinematics(model, d)
         corners = d.site_xpos[self._corners]  # (nfeet, 4, 3)
