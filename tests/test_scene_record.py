@@ -86,3 +86,21 @@ def test_the_replay_runs_in_the_records_scene(robot):
     # Feedback and whole-motion replays use the scene too.
     traj.scene = SCENE
     assert Replayer(robot, traj).full().fall_time is None
+
+
+def test_render_draws_the_records_scene_and_ghost(robot, tmp_path):
+    import imageio
+
+    from opt2skill.eval.render import ghost_qpos_address, render_video, scene_model
+
+    model = scene_model(robot, ghost=True, scene=SCENE)
+    assert model.nq == 2 * robot.nq + 7 and ghost_qpos_address(model, robot) == robot.nq + 7
+    traj = standing(robot, SCENE, seconds=0.1, lift=LANDING)
+    shifted = traj.qpos.copy()
+    shifted[:, 1] -= 0.8
+    frames = {}
+    for name, scene in (("scene", SCENE), ("flat", None)):
+        path = render_video(robot, traj.qpos, tmp_path / f"{name}.mp4", ghost_qpos=shifted, fps=10, size=(120, 160),
+                            scene=scene)
+        frames[name] = np.asarray(imageio.get_reader(path).get_data(0), dtype=float)
+    assert frames["scene"].std() > 5 and np.abs(frames["scene"] - frames["flat"]).mean() > 1.0
