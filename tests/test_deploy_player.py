@@ -117,3 +117,23 @@ def test_deploy_sim_reports_evals_metrics(exported, tmp_path):
     assert set(report["summary"]) >= {"E_joint", "E_ee_foot", "E_force", "E_torque"}
     assert "NOT held out" in report["references"]["note"]
     assert "E_joint (rad)" in (out / "eval.md").read_text()
+
+
+def test_the_player_plays_a_reference_in_its_scene(exported):
+    """The same reference made on the top landing of stairs (0.4 m up) plays on that landing: the
+    robot moves as on the floor, 0.4 m higher (on the bare floor it would drop)."""
+    from opt2skill.scene import Scene, Stairs
+
+    _, dataset, path = exported
+    reference = Dataset.open(dataset)[0]
+    qpos = reference.qpos.copy()
+    qpos[:, 2] += 0.4
+    landing = Scene(Stairs(0.1, start=20.0, n_steps=4, landing=30.0, down=True))
+    on_landing = dataclasses.replace(reference, qpos=qpos, scene=landing)
+    player = Player(path)
+    floor, high = player.run(reference), player.run(on_landing)
+    assert player.model.nq == player.robot.nq and high.tracked.scene == landing
+    n = min(floor.tracked.num_frames, high.tracked.num_frames, 60)
+    assert n > 10
+    rise = high.tracked.qpos[:n, 2] - floor.tracked.qpos[:n, 2]
+    assert np.abs(rise - 0.4).max() < 0.01

@@ -15,6 +15,7 @@ import numpy as np
 
 from opt2skill.geometry import rotate_inv
 from opt2skill.model.robot import Robot
+from opt2skill.scene.description import Scene
 
 FRAME_RATE = 200.0  # Hz
 FRAME_DT = 1.0 / FRAME_RATE
@@ -50,6 +51,8 @@ class Trajectory:
     solver: dict[str, Any] = field(default_factory=dict)
     validation: dict[str, Any] = field(default_factory=dict)
     provenance: dict[str, Any] = field(default_factory=dict)
+    # The terrain and props the motion was made on (docs/data.md); the flat floor by default.
+    scene: Scene = field(default_factory=Scene)
     # Optional solver-grid data (knot times, states in Crocoddyl's layout, controls, feedback gains):
     # name -> array. Documented in docs/data.md by the producer that writes it.
     knots: dict[str, np.ndarray] = field(default_factory=dict)
@@ -79,6 +82,7 @@ def build_trajectory(
     solver: dict[str, Any] | None = None,
     provenance: dict[str, Any] | None = None,
     knots: dict[str, np.ndarray] | None = None,
+    scene: Scene | None = None,
 ) -> Trajectory:
     """A record from 200 Hz state, torques and wrenches; kinematic fields come from the model."""
     qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
@@ -121,4 +125,5 @@ def build_trajectory(
         solver=dict(solver or {}),
         provenance=dict(provenance or {}),
         knots=dict(knots or {}),
+        scene=scene or Scene(),
     )

@@ -10,6 +10,9 @@ An open-loop replay of a long walk drifts and falls even when the reference is d
 twice: once over the whole motion (the time to fall is reported), and as windows of fixed length,
 each restarted from the reference state, that tile the motion (a reference that cannot be followed
 for a few seconds from its own state is suspicious). docs/data.md gives the figures behind this.
+
+The replay runs in the record's scene (its terrain and props, `opt2skill.scene.build_model`). The
+robot's state leads the scene model's; props start where the scene puts them at every restart.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from opt2skill.geometry import quat_error
 from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
 from opt2skill.model.robot import Robot
 from opt2skill.model.sensors import SensorLayout
+from opt2skill.scene.build import build_model
 
 
 @dataclass(frozen=True)
@@ -76,15 +80,16 @@ class Replayer:
 
     def __init__(self, robot: Robot, traj: Trajectory, settings: ReplaySettings = ReplaySettings()):
         self.robot, self.traj, self.settings = robot, traj, settings
-        self.model = robot.mj_model
+        self.model = build_model(robot, traj.scene)
         self.data = mujoco.MjData(self.model)
+        self.nq, self.nv = robot.nq, robot.nv  # the robot's part of the scene's qpos and qvel
         self.dt = float(self.model.opt.timestep)
         self.layout = SensorLayout.from_model(self.model, robot.config)
         feet = [f.name for f in robot.config.feet]
         self.foot_sensor = [self.layout.ee_names.index(n) for n in feet]
         self.foot_ref = [traj.ee_names.index(n) for n in feet]
-        self.damping = self.model.dof_damping[6:].copy()
-        self.frictionloss = self.model.dof_frictionloss[6:].copy()
+        self.damping = self.model.dof_damping[6 : self.nv].copy()
+        self.frictionloss = self.model.dof_frictionloss[6 : self.nv].copy()
 
     def _frac(self, start_frame: int, nstep: int, offset: float = 0.0) -> np.ndarray:
         """Fractional frame index at each physics step (plus `offset` steps)."""
@@ -110,16 +115,16 @@ class Replayer:
 
     def initial_state(self, frame: int) -> np.ndarray:
         d = self.data
-        mujoco.mj_resetData(self.model, d)
-        d.qpos[:] = self.traj.qpos[frame]
-        d.qvel[:] = self.traj.qvel[frame]
+        mujoco.mj_resetData(self.model, d)  # props at their scene poses, at rest
+        d.qpos[: self.nq] = self.traj.qpos[frame]
+        d.qvel[: self.nv] = self.traj.qvel[frame]
         state = np.empty(mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
         mujoco.mj_getState(self.model, d, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         return state
 
     def run(self, start_frames: list[int], nstep: int) -> list[Rollout]:
         """Batched replays of `nstep` physics steps from each start frame."""
-        m, nq = self.model, self.model.nq
+        m, nq = self.model, self.nq
         init = np.stack([self.initial_state(k) for k in start_frames])
         ctrl = np.stack([self.controls(k, nstep) for k in start_frames])
         state, sensors = mujoco.rollout.rollout(m, self.data, init, ctrl)
@@ -175,21 +180,22 @@ class Replayer:
         gains = np.asarray(k["gains"], dtype=float)
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
-        d.qpos[:], d.qvel[:] = tr.qpos[0], tr.qvel[0]
-        qpos = np.empty((nstep, m.nq))
+        d.qpos[: self.nq], d.qvel[: self.nv] = tr.qpos[0], tr.qvel[0]
+        qpos = np.empty((nstep, self.nq))
         sensors = np.empty((nstep, m.nsensordata))
         kp, kd = cfg.kp, cfg.kd
         for i in range(nstep):
-            q = qpos_mj_to_pin(d.qpos)
-            dx = np.concatenate([pin.difference(pm, q_ref[i], q), qvel_mj_to_pin(d.qpos, d.qvel) - v_ref[i]])
-            u = tau_ref[i] - gains[node[i]] @ dx + self._joint_losses(d.qvel[6:])
+            qpos_now, qvel_now = d.qpos[: self.nq], d.qvel[: self.nv]
+            q = qpos_mj_to_pin(qpos_now)
+            dx = np.concatenate([pin.difference(pm, q_ref[i], q), qvel_mj_to_pin(qpos_now, qvel_now) - v_ref[i]])
+            u = tau_ref[i] - gains[node[i]] @ dx + self._joint_losses(qvel_now[6:])
             if self.settings.feedback_pd:
                 d.ctrl[:] = qpos_ref[i, 7:] + (u + kd * v_ref[i, 6:]) / kp
             else:
-                d.ctrl[:] = d.qpos[7:] + (u + kd * d.qvel[6:]) / kp
+                d.ctrl[:] = qpos_now[7:] + (u + kd * qvel_now[6:]) / kp
             mujoco.mj_step(m, d)
-            qpos[i], sensors[i] = d.qpos, d.sensordata
-            if i % 50 == 0 and self._fallen(qpos_ref[min(i + 1, nstep - 1)], d.qpos):
+            qpos[i], sensors[i] = d.qpos[: self.nq], d.sensordata
+            if i % 50 == 0 and self._fallen(qpos_ref[min(i + 1, nstep - 1)], d.qpos[: self.nq]):
                 nstep = i + 1
                 break
         return self._measure(0, nstep, qpos[:nstep], sensors[:nstep])
@@ -209,7 +215,7 @@ class Replayer:
         while done < nstep:
             n = min(per, nstep - done)
             states, sens = mujoco.rollout.rollout(m, self.data, state, ctrl[None, done : done + n])
-            qpos.append(states[0, :, 1 : 1 + m.nq])
+            qpos.append(states[0, :, 1 : 1 + self.nq])
             sensors.append(sens[0])
             state, done = states[:, -1], done + n
             if self._fallen(_interp(self.traj.qpos, self._frac(0, 1, offset=done))[0], qpos[-1][-1]):

@@ -4,7 +4,8 @@ Layout of a file (docs/data.md):
 
     /traj_000123                 group, attributes: format, format_version, index, task, robot,
                                  seed, contact_names, ee_names, params, solver, validation,
-                                 provenance (JSON strings where not scalars)
+                                 provenance, scene (JSON strings where not scalars; a file
+                                 without `scene` predates scenes and reads as the flat floor)
         time, qpos, ..., com     the frame fields, float64 (contact_active bool), gzip + shuffle,
                                  chunked along time
         knots/                   optional solver-grid arrays, dtype kept (feedback gains float32)
@@ -26,7 +27,8 @@ import numpy as np
 
 from opt2skill.data.atomic import atomic_path, dumps
 from opt2skill.data.record import FRAME_FIELDS, Trajectory
-from opt2skill.errors import DataError
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.scene.description import Scene
 
 FORMAT = "opt2skill-trajectory"
 FORMAT_VERSION = 1
@@ -57,6 +59,7 @@ class TrajectoryMeta:
     validation: dict[str, Any]
     provenance: dict[str, Any]
     knot_names: tuple[str, ...]
+    scene: Scene
 
 
 def write_trajectory(path: str | Path, traj: Trajectory, index: int, *, drop_knots: tuple[str, ...] = ()) -> None:
@@ -74,6 +77,7 @@ def write_trajectory(path: str | Path, traj: Trajectory, index: int, *, drop_kno
                 "seed": int(traj.seed),
             }
             attrs.update({name: dumps(getattr(traj, name)) for name in _JSON_ATTRS})
+            attrs["scene"] = dumps(traj.scene.to_dict())
             g.attrs.update(attrs)
             for name in FRAME_FIELDS:
                 _write_array(g, name, np.asarray(getattr(traj, name)))
@@ -161,6 +165,19 @@ def _attrs(g: h5py.Group) -> dict[str, Any]:
     return out
 
 
+def _scene(g: h5py.Group) -> Scene:
+    """The group's scene; files written before scenes existed were all made on the flat floor."""
+    if "scene" not in g.attrs:
+        return Scene()
+    value = g.attrs["scene"]
+    try:
+        return Scene.from_dict(json.loads(value.decode() if isinstance(value, bytes) else value))
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{g.file.filename}:{g.name}: attribute 'scene' is not valid JSON ({exc})") from None
+    except ConfigError as exc:
+        raise DataError(f"{g.file.filename}:{g.name}: attribute 'scene' is not a valid scene: {exc}") from None
+
+
 def _dataset(g: h5py.Group, name: str) -> h5py.Dataset:
     obj = g.get(name)
     if not isinstance(obj, h5py.Dataset):
@@ -192,6 +209,7 @@ def read_meta(path: str | Path, group: str | None = None) -> TrajectoryMeta:
             group=g.name.lstrip("/"),
             num_frames=int(_dataset(g, "time").shape[0]),
             knot_names=tuple(knots.keys()) if isinstance(knots, h5py.Group) else (),
+            scene=_scene(g),
             **_attrs(g),
         )
 
@@ -222,4 +240,4 @@ def read_trajectory(path: str | Path, group: str | None = None, *, knots: bool =
         if knots and isinstance(kg, h5py.Group):
             knot_arrays = {name: _read(ds) for name, ds in kg.items() if isinstance(ds, h5py.Dataset)}
         a.pop("index")
-        return Trajectory(**arrays, **a, knots=knot_arrays)
+        return Trajectory(**arrays, **a, knots=knot_arrays, scene=_scene(g))

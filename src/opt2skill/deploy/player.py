@@ -28,6 +28,8 @@ from opt2skill.geometry import projected_gravity, quat_error
 from opt2skill.model import load_robot
 from opt2skill.model.robot import Robot
 from opt2skill.model.sensors import SensorLayout
+from opt2skill.scene.build import build_model
+from opt2skill.scene.description import Scene
 
 MAX_SPEED = 100.0  # any |qvel| beyond this (m/s, rad/s): the simulation diverged
 
@@ -85,12 +87,9 @@ class Player:
         options.intra_op_num_threads = 1
         self.session = ort.InferenceSession(str(self.path), options, providers=["CPUExecutionProvider"])
         self._check_network()
-        self.model = self.robot.compile(self.robot.mj_spec())
-        self.model.opt.timestep = config.physics_dt
         self.kp, self.kd, self.limit = meta.array("kp"), meta.array("kd"), meta.array("torque_limit")
-        self._set_servos()
-        self.data = mujoco.MjData(self.model)
-        self.sensors = SensorLayout.from_model(self.model, self.robot.config)
+        self.scene: Scene | None = None
+        self._use_scene(Scene())
         self.feet = list(meta.robot["feet"])
         self._foot_rows = [self.sensors.foot_names.index(f) for f in self.feet]
         self.default_pose = meta.array("default_pose")
@@ -112,6 +111,18 @@ class Player:
         if len(outputs) != 1 or shape != (1, self.meta.nu):
             raise DataError(f"{self.path}: the network outputs shape {shape} for one observation; its metadata "
                             f"describes {self.meta.nu} actions (one per joint)")
+
+    def _use_scene(self, scene: Scene) -> None:
+        """The physics of `scene` (a reference's terrain and props, the robot's state first), built
+        when it differs from the current one."""
+        if scene == self.scene:
+            return
+        self.model = build_model(self.robot, scene)
+        self.model.opt.timestep = self.config.physics_dt
+        self._set_servos()
+        self.data = mujoco.MjData(self.model)
+        self.sensors = SensorLayout.from_model(self.model, self.robot.config)
+        self.scene = scene
 
     def _set_servos(self) -> None:
         """The servos of the metadata: u = clip(kp (target - q) - kd qd, +-limit) at every physics step."""
@@ -142,12 +153,14 @@ class Player:
 
     def run(self, reference: Trajectory, keep_observations: bool = False) -> PlayerRollout:
         """Track `reference` from its first frame until it ends or a termination."""
+        nq, nv = self.robot.nq, self.robot.nv  # the robot's part of the scene's state
+        if reference.qpos.shape[1] != nq:
+            raise DataError(f"the reference has {reference.qpos.shape[1]} positions; robot '{self.robot.name}' has {nq}")
+        self._use_scene(reference.scene)
         m, d = self.model, self.data
-        if reference.qpos.shape[1] != m.nq:
-            raise DataError(f"the reference has {reference.qpos.shape[1]} positions; robot '{self.robot.name}' has {m.nq}")
         ref = ReferenceFrames(reference, self.feet)
-        mujoco.mj_resetData(m, d)
-        d.qpos[:], d.qvel[:] = reference.qpos[0], reference.qvel[0]
+        mujoco.mj_resetData(m, d)  # props at their scene poses
+        d.qpos[:nq], d.qvel[:nv] = reference.qpos[0], reference.qvel[0]
         d.ctrl[:] = reference.qpos[0, 7:]  # the servos hold the start pose
         mujoco.mj_forward(m, d)
         r = self.sense()
@@ -158,7 +171,7 @@ class Player:
         delay = int(round(self.config.latency / self.config.physics_dt))
         pending: deque[tuple[int, np.ndarray]] = deque()
         readings = np.empty((self.substeps, m.nsensordata))  # each physics step's sensors, decoded per policy step
-        qpos, qvel, torque, wrench, active, seen = [d.qpos.copy()], [d.qvel.copy()], [], [], [], []
+        qpos, qvel, torque, wrench, active, seen = [d.qpos[:nq].copy()], [d.qvel[:nv].copy()], [], [], [], []
         substep, cause, action = 0, "time_out", None
         for t in range(reference.num_frames - 1):
             if action is not None:
@@ -179,12 +192,12 @@ class Player:
                     mujoco.mjtWarning.mjWARN_BADQACC].number:
                 cause = "unstable"
                 break
-            qpos.append(d.qpos.copy())
-            qvel.append(d.qvel.copy())
+            qpos.append(d.qpos[:nq].copy())
+            qvel.append(d.qvel[:nv].copy())
             torque.append(self.sensors.take(readings, "joint_torque").mean(axis=0))  # MEAN over the step
             wrench.append(self._wrenches(readings).mean(axis=0))
             active.append(self.sensors.contact_found(readings[-1])[self._foot_rows] > 0)  # LAST
-            ended = self._judge(d.qpos, reference.qpos[t + 1])
+            ended = self._judge(d.qpos[:nq], reference.qpos[t + 1])
             if ended:
                 cause = ended
                 break
@@ -195,7 +208,8 @@ class Player:
             series.append(series[-1])  # the last frame repeats the last step's torques and forces (as the record)
         tracked = build_trajectory(self.robot, np.array(qpos), np.array(qvel), np.array(torque), np.array(wrench),
                                    np.array(active), task=reference.task, contact_names=tuple(self.feet),
-                                   params=reference.params, seed=reference.seed, ee_names=reference.ee_names)
+                                   params=reference.params, seed=reference.seed, ee_names=reference.ee_names,
+                                   scene=reference.scene)
         return PlayerRollout(reference, tracked, cause, np.array(seen) if keep_observations else None)
 
     def _wrenches(self, sensordata: np.ndarray) -> np.ndarray:

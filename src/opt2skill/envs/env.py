@@ -23,7 +23,7 @@ from opt2skill.envs.reference import ReferenceBank
 from opt2skill.envs.rewards import StepContext, penalty_values, reward_terms, task_errors
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
-from opt2skill.sim import BatchedSim, MujocoBatchedSim, SimConfig, SimStep
+from opt2skill.sim import BatchedSim, Flat, MujocoBatchedSim, SimConfig, SimStep
 
 CAUSES = ("time_out", "fall", "height_error", "orientation_error", "xy_error", "unstable")
 
@@ -65,12 +65,23 @@ class TrackingEnv:
         self.robot, self.bank, self.config = robot, bank, config
         self.num_envs, self.nu = int(num_envs), robot.nu
         self.rng = np.random.default_rng(seed)
-        self.terrains = randomization.terrains(config.randomization, bank.xy_range, seed)
-        self.sim = sim or MujocoBatchedSim(robot, self.num_envs, SimConfig(nsubstep=5, nthread=threads),
-                                           terrains=self.terrains)
+        grounds, ground = bank.grounds()
+        if sim is None:  # every reference's own ground, then the randomized variants (envs/randomization.py)
+            self.terrains = randomization.terrains(config.randomization, grounds, bank.xy_range, seed)
+            self.sim = MujocoBatchedSim(robot, self.num_envs, SimConfig(nsubstep=5, nthread=threads),
+                                        terrains=self.terrains)
+            self._ground = ground  # (trajectories,) index of each reference's ground in `terrains`
+            self._variants = list(range(len(grounds), len(self.terrains)))
+        else:  # the caller's terrains (e.g. a terrain sweep) replace the references' flat floor
+            if not all(isinstance(g, Flat) for g in grounds):
+                raise ConfigError("a simulator with its own terrains can only track references made on the flat "
+                                  f"floor; these were made on {[g.name for g in grounds]}")
+            self.sim, self._ground = sim, np.zeros(bank.num_trajectories, dtype=np.int64)
+            self._variants = [i for i, t in enumerate(sim.terrains) if not isinstance(t, Flat)]
         if abs(self.sim.policy_dt - FRAME_DT) > 1e-12:
             raise ConfigError(f"the simulator's policy step is {self.sim.policy_dt} s; references are at {FRAME_DT} s")
         self.terrains = list(self.sim.terrains)
+        self._made_on_flat = np.array([isinstance(grounds[g], Flat) for g in ground], dtype=bool)
         obs = config.observations
         self.layout: ObservationLayout = layout(obs, self.nu, len(robot.config.feet))
         ee_names = list(robot.config.end_effectors)
@@ -154,7 +165,8 @@ class TrackingEnv:
             raise ConfigError("reset: trajectory or start frame out of range")
         rows = bank.start[traj] + frames
         qpos, qvel = bank.state(rows)
-        params = randomization.sample_params(self.rng, k, self.sim.nbody, self.nu, self._randomization, self.terrains)
+        params = randomization.sample_params(self.rng, k, self.sim.nbody, self.nu, self._randomization,
+                                             self._variants, self._ground[traj], self._made_on_flat[traj])
         params.kp_factor *= self.config.actions.kp_scale
         targets = qpos[:, 7:]
         out = self.sim.reset(worlds, qpos, qvel, targets=targets, params=params)

@@ -17,6 +17,8 @@ from opt2skill.data.record import Trajectory
 from opt2skill.errors import DataError
 from opt2skill.geometry import quat_to_mat, yaw_of
 from opt2skill.model.robot import Robot
+from opt2skill.scene.description import Scene
+from opt2skill.scene.terrain import Terrain
 
 FIELDS = ("qpos", "qvel", "base_lin_vel", "base_ang_vel", "joint_torque", "contact_wrench", "ee_pos_base")
 
@@ -40,6 +42,7 @@ class ReferenceBank:
     positions: np.ndarray  # (n,) dataset positions (or list positions) of the trajectories
     task: str
     xy_range: tuple[tuple[float, float], tuple[float, float]]  # extent of the base paths, for terrain
+    scenes: tuple[Scene, ...]  # (n,) the scene each trajectory was made on
 
     @property
     def num_trajectories(self) -> int:
@@ -62,8 +65,10 @@ class ReferenceBank:
             )
         first = dataset.meta(0 if subset is None else int(subset[0]))
         table = dataset.frame_table(FIELDS, dtype=np.float32, subset=subset, use_cache=use_cache)
+        scenes = [dataset.meta(int(p)).scene for p in table.trajectories]
         return cls._build(robot, dict(table.fields), table.start, table.length, table.trajectories,
-                          identity.get("task", first.task), first.contact_names, first.ee_names, end_effectors)
+                          identity.get("task", first.task), first.contact_names, first.ee_names, end_effectors,
+                          scenes)
 
     @classmethod
     def from_trajectories(cls, robot: Robot, trajectories: Sequence[Trajectory], end_effectors: Sequence[str],
@@ -78,12 +83,12 @@ class ReferenceBank:
         fields = {name: np.concatenate([getattr(t, name) for t in trajectories]).astype(dtype) for name in FIELDS}
         start = np.concatenate([[0], np.cumsum(length)[:-1]])
         return cls._build(robot, fields, start, length, np.arange(len(trajectories)), first.task,
-                          first.contact_names, first.ee_names, end_effectors, dtype)
+                          first.contact_names, first.ee_names, end_effectors, [t.scene for t in trajectories], dtype)
 
     @classmethod
     def _build(cls, robot: Robot, f: dict[str, np.ndarray], start, length, positions, task: str,
                contact_names: Sequence[str], ee_names: Sequence[str], end_effectors: Sequence[str],
-               dtype=np.float32) -> ReferenceBank:
+               scenes: Sequence[Scene], dtype=np.float32) -> ReferenceBank:
         nu, nq = robot.nu, robot.nq
         if f["qpos"].shape[1] != nq or f["joint_torque"].shape[1] != nu:
             raise DataError(f"reference trajectories have {f['qpos'].shape[1]} positions and {f['joint_torque'].shape[1]} "
@@ -94,6 +99,10 @@ class ReferenceBank:
         if tuple(contact_names) != tuple(feet):
             raise DataError(f"the tracking task compares the feet's contact forces {feet}; "
                             f"the references have contacts {list(contact_names)}")
+        with_props = sorted({p.name for s in scenes for p in s.props})
+        if with_props:
+            raise DataError(f"the tracking environment rebuilds the references' terrain but not their props yet; "
+                            f"the references have props {with_props}")
         missing = [e for e in end_effectors if e not in ee_names]
         if missing:
             raise DataError(f"end effectors {missing} are not in the references (they have {list(ee_names)})")
@@ -124,7 +133,16 @@ class ReferenceBank:
         xy = qpos[:, :2]
         xy_range = ((float(xy[:, 0].min()), float(xy[:, 0].max())), (float(xy[:, 1].min()), float(xy[:, 1].max())))
         return cls(kin, dyn, kin_cols, dyn_cols, np.asarray(start, dtype=np.int64), np.asarray(length, dtype=np.int64),
-                   np.asarray(positions), str(task), xy_range)
+                   np.asarray(positions), str(task), xy_range, tuple(scenes))
+
+    def grounds(self) -> tuple[list[Terrain], np.ndarray]:
+        """The distinct grounds the trajectories were made on (in order of first use) and the index
+        (n,) of each trajectory's ground among them."""
+        first: dict = {}  # terrain description -> its first scene (whose ground is then built once)
+        for scene in self.scenes:
+            first.setdefault(scene.terrain, scene)
+        position = {terrain: i for i, terrain in enumerate(first)}
+        return [s.ground for s in first.values()], np.array([position[s.terrain] for s in self.scenes], dtype=np.int64)
 
     def state(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """MuJoCo qpos (k, nq) and qvel (k, nv), float64, of reference rows (base linear velocity to

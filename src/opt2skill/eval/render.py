@@ -18,23 +18,31 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import ConfigError
 from opt2skill.model.mujoco_model import load_spec
 from opt2skill.model.robot import Robot
-from opt2skill.sim.scene import TerrainScene
-from opt2skill.sim.terrain import Terrain
+from opt2skill.scene.build import add_scene, show_ground
+from opt2skill.scene.description import Scene
+from opt2skill.scene.ground import TerrainScene
+from opt2skill.scene.terrain import Terrain
 
 GHOST_RGBA = (0.2, 0.7, 1.0, 0.3)
 GHOST_PREFIX = "ghost/"
 
 
 def scene_model(robot: Robot, ghost: bool, add_terrain: Callable[[mujoco.MjSpec], None] | None = None,
-                terrain: Terrain | None = None) -> mujoco.MjModel:
+                terrain: Terrain | None = None, scene: Scene | None = None) -> mujoco.MjModel:
     """The robot on its floor (or on a terrain added by `add_terrain`, or on one of the simulator's
-    terrains: stairs, slopes, rough ground), plus a non-colliding ghost."""
+    terrains: stairs, slopes, rough ground, or in a record's `scene` with its props), plus a
+    non-colliding ghost (its qpos at `ghost_qpos_address`)."""
+    if sum(x is not None for x in (add_terrain, terrain, scene)) > 1:
+        raise ConfigError("render on one ground: give add_terrain, terrain or scene, not several")
     spec = robot.mj_spec(floor=add_terrain is None)
     if add_terrain is not None:
         add_terrain(spec)
-    scene = TerrainScene([terrain]) if terrain is not None else None
-    if scene is not None:
-        scene.add_to(spec)
+    ground = None
+    if terrain is not None:
+        ground = TerrainScene([terrain])
+        ground.add_to(spec)
+    elif scene is not None:
+        ground = add_scene(spec, scene)
     if ghost:
         copy = load_spec(robot.config)
         for geom in copy.geoms:
@@ -44,10 +52,17 @@ def scene_model(robot: Robot, ghost: bool, add_terrain: Callable[[mujoco.MjSpec]
     spec.visual.headlight.ambient = [0.45, 0.45, 0.45]
     spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
     model = robot.compile(spec)
-    if scene is not None:
-        scene.bind(model)
-        scene.apply(model, 0)
+    if ground is not None:
+        show_ground(model, ground)
     return model
+
+
+def ghost_qpos_address(model: mujoco.MjModel, robot: Robot) -> int:
+    """Where the ghost's qpos starts (after the robot's and any prop's)."""
+    joint = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, GHOST_PREFIX + robot.config.root_joint)
+    if joint < 0:
+        raise ConfigError("the model has no ghost")
+    return int(model.jnt_qposadr[joint])
 
 
 def render_video(
@@ -60,6 +75,7 @@ def render_video(
     frame_dt: float = FRAME_DT,
     add_terrain: Callable[[mujoco.MjSpec], None] | None = None,
     terrain: Terrain | None = None,
+    scene: Scene | None = None,
 ) -> Path:
     """Write `qpos` (T, nq) frames, `frame_dt` apart, as a video; the ghost shows `ghost_qpos`.
 
@@ -74,8 +90,9 @@ def render_video(
         raise ConfigError(f"fps must be in [1, 240], got {fps}")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    model = scene_model(robot, ghost=ghost_qpos is not None, add_terrain=add_terrain, terrain=terrain)
-    data = mujoco.MjData(model)
+    model = scene_model(robot, ghost=ghost_qpos is not None, add_terrain=add_terrain, terrain=terrain, scene=scene)
+    data = mujoco.MjData(model)  # props at their scene poses (a record holds the robot's motion only)
+    ghost_at = ghost_qpos_address(model, robot) if ghost_qpos is not None else 0
     times = np.arange(0.0, (len(qpos) - 1) * frame_dt + 1e-9, 1.0 / fps)
     frames = np.minimum(np.rint(times / frame_dt).astype(int), len(qpos) - 1)
     camera = mujoco.MjvCamera()
@@ -87,7 +104,7 @@ def render_video(
         for f in frames:
             data.qpos[: robot.nq] = qpos[f]
             if ghost_qpos is not None:
-                data.qpos[robot.nq :] = ghost_qpos[min(f, len(ghost_qpos) - 1)]
+                data.qpos[ghost_at : ghost_at + robot.nq] = ghost_qpos[min(f, len(ghost_qpos) - 1)]
             mujoco.mj_kinematics(model, data)
             lookat[:2] += 0.2 * (qpos[f, :2] - lookat[:2])  # smooth follow, no jitter at each step
             camera.lookat[:] = lookat

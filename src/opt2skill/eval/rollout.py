@@ -20,8 +20,8 @@ from opt2skill.envs.config import TrackingConfig
 from opt2skill.envs.evaluation import Policy, track
 from opt2skill.eval.metrics import TrackingErrors, tracking_errors
 from opt2skill.model.robot import Robot
+from opt2skill.scene.terrain import Terrain
 from opt2skill.sim import MujocoBatchedSim, SimConfig
-from opt2skill.sim.terrain import Terrain
 
 MAX_WORLDS = 64  # worlds per batch
 

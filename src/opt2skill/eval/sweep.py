@@ -37,7 +37,7 @@ from opt2skill.envs.config import TerminationConfig
 from opt2skill.errors import ConfigError
 from opt2skill.eval.rollout import Rollout, rollout
 from opt2skill.geometry import quat_mul, tilt_angle
-from opt2skill.sim.terrain import Slope, Stairs, Terrain
+from opt2skill.scene.terrain import Slope, Stairs, Terrain
 
 MIN_TRAVEL_ON_TERRAIN = 0.5  # m a reference must go beyond the terrain's start for a sweep to mean something
 TERRAINS = {  # name -> (unit shown, default step, default maximum)

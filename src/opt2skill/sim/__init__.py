@@ -4,10 +4,10 @@
 MuJoCo (`mujoco.rollout` on a thread pool). docs/sim.md is the contract.
 """
 
+from opt2skill.scene.terrain import Flat, Rough, Slope, Stairs, Terrain, TerrainGrid, flat, rough
 from opt2skill.sim.base import BatchedSim, SimConfig, SimStep
 from opt2skill.sim.mujoco_sim import MujocoBatchedSim
 from opt2skill.sim.params import WorldParams, sample_uniform
-from opt2skill.sim.terrain import Flat, Rough, Slope, Stairs, Terrain, TerrainGrid, flat, rough
 
 __all__ = [
     "BatchedSim",

@@ -16,8 +16,8 @@ import numpy as np
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
+from opt2skill.scene.terrain import Terrain
 from opt2skill.sim.params import WorldParams
-from opt2skill.sim.terrain import Terrain
 
 
 @dataclass(frozen=True)

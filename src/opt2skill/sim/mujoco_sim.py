@@ -21,12 +21,12 @@ from mujoco import rollout
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
+from opt2skill.scene.ground import TerrainScene
+from opt2skill.scene.terrain import Flat, Terrain
 from opt2skill.sim.base import BatchedSim, SimConfig, SimStep
 from opt2skill.sim.delay import ActionDelay
 from opt2skill.sim.outputs import OutputDecoder
 from opt2skill.sim.params import NominalModel, WorldParams
-from opt2skill.sim.scene import TerrainScene
-from opt2skill.sim.terrain import Flat, Terrain
 
 FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
 CTRL = mujoco.mjtState.mjSTATE_CTRL.value
@@ -224,10 +224,11 @@ class MujocoBatchedSim(BatchedSim):
 
         With c_f the lowest sole corner of foot f and h_f the highest terrain under it, the lift is
         max(max_f (h_f - c_f), min_f h_f): a stance foot (c = 0) lands on the highest point under it,
-        a swing foot keeps its clearance. On the flat plane it is 0.
+        a swing foot keeps its clearance. On the flat plane it is 0, and so it is for a world whose
+        `lift` is off (its state was made on this terrain and already stands on it).
         """
         terrain = self.terrains[int(self._params.terrain[world])]
-        if isinstance(terrain, Flat):
+        if isinstance(terrain, Flat) or not self._params.lift[world]:
             return 0.0
         mujoco.mj_kinematics(model, d)
         corners = d.site_xpos[self._corners]  # (nfeet, 4, 3)

@@ -16,8 +16,9 @@ world's own MjModel copy from the stored nominal values, so repeated resets neve
   constant delivers `s` times the torque commanded, including at saturation, because the limit is
   enforced on the command (Digit's LLAPI limits are command limits). The torque sensors report the
   torque applied to the joint, `s` included.
-- `delay` (seconds, applied rounded to whole physics steps) and `terrain` (index into the
-  simulator's terrains) are applied by the simulator itself, not through the model.
+- `delay` (seconds, applied rounded to whole physics steps), `terrain` (index into the
+  simulator's terrains) and `lift` (whether a reset lifts the given state onto the terrain) are
+  applied by the simulator itself, not through the model.
 """
 
 from __future__ import annotations
@@ -52,6 +53,9 @@ class WorldParams:
     motor_strength: np.ndarray  # (k, nu) factor on Kp, Kd and the torque limit together
     delay: np.ndarray  # (k,) action delay, seconds (applied rounded to whole physics steps)
     terrain: np.ndarray  # (k,) int, index into the simulator's terrains
+    # (k,) bool: a reset lifts the given state onto the terrain (a state made on the flat floor);
+    # False keeps its height (a state made on this very terrain, e.g. a reference on its stairs).
+    lift: np.ndarray
 
     @classmethod
     def nominal(cls, k: int, nbody: int, nu: int) -> WorldParams:
@@ -64,6 +68,7 @@ class WorldParams:
             motor_strength=np.ones((k, nu)),
             delay=np.zeros(k),
             terrain=np.zeros(k, dtype=int),
+            lift=np.ones(k, dtype=bool),
         )
 
     def __len__(self) -> int:
@@ -93,6 +98,9 @@ class WorldParams:
             if f.name == "terrain":
                 ok = (np.mod(value, 1) == 0) & (value >= 0) & (value <= nterrain - 1)
                 allowed = f"terrain indices 0 to {nterrain - 1}"
+            elif f.name == "lift":
+                ok = (value == 0) | (value == 1)
+                allowed = "true or false"
             elif f.name == "delay":
                 ok = np.isfinite(value) & (value >= 0) & (value <= max_delay + 1e-9)
                 allowed = f"[0, {max_delay:g}] s (SimConfig.max_delay)"
@@ -102,7 +110,7 @@ class WorldParams:
                 allowed = f"[{lo:g}, {hi:g}]"
             if not ok.all():
                 raise ConfigError(f"world parameter '{f.name}' has {value[~ok].flat[0]}; allowed: {allowed}")
-            out[f.name] = value.astype(int if f.name == "terrain" else float)
+            out[f.name] = value.astype({"terrain": int, "lift": bool}.get(f.name, float))
         return WorldParams(**out)
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.mujoco_model import FLOOR_FRICTION, GROUND_CONAFFINITY, GROUND_CONTYPE
-from opt2skill.sim.terrain import Flat, Rough, Slope, Stairs, Terrain
+from opt2skill.scene.terrain import Flat, Rough, Slope, Stairs, Terrain
 
 FLOOR, HFIELD, INCLINE, TOP = "floor", "terrain_hfield", "slope_incline", "slope_top"
 GROUND_RGBA = [0.45, 0.42, 0.38, 1.0]

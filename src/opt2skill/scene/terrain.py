@@ -5,8 +5,8 @@ Flat is MuJoCo's plane. Rough is a heightfield: MuJoCo collides with it as two t
 split along the cell's (x0, y0)-(x1, y1) diagonal, and `Rough.height` interpolates the same way.
 Stairs and slopes are boxes, so step edges are sharp and the feet get a few contacts each (a foot
 on a heightfield gets up to 50, two per cell it covers, which is slow and, at fine resolution,
-truncated unevenly). Stairs and slopes go up along +x from `start`; the plane is the ground before
-them and beside them.
+truncated unevenly). Stairs and slopes go up along +x from `start` (stairs can also go down: a
+raised landing before `start`, then steps down); the plane is the ground before them and beside them.
 """
 
 from __future__ import annotations
@@ -126,7 +126,11 @@ class Rough:
 
 @dataclass(frozen=True)
 class Stairs:
-    """`n_steps` steps up along +x from x = start, the last one a landing `landing` m long."""
+    """`n_steps` steps up along +x from x = start, the last one a landing `landing` m long.
+
+    With `down`, the mirror image: a landing `landing` m long ending at x = start at the top
+    (n_steps * step_height), then steps down along +x to the floor.
+    """
 
     step_height: float
     step_length: float = 0.3
@@ -135,37 +139,56 @@ class Stairs:
     width: float = 20.0  # along y, centred on y = 0
     landing: float = 6.0
     name: str = ""
+    down: bool = False
 
     def __post_init__(self) -> None:
         _check("stair step height", self.step_height, 0.0, 0.3, "m")
         _check("stair step length", self.step_length, 0.1, 2.0, "m")
         _check("stair width", self.width, 0.5, 100.0, "m")
         _check("stair landing", self.landing, self.step_length, 100.0, "m")
+        _check("stair start", self.start, -100.0, 100.0, "m")
         if not (isinstance(self.n_steps, (int, np.integer)) and 1 <= self.n_steps <= 100):
             raise ConfigError(f"number of stair steps must be an integer in [1, 100], got {self.n_steps}")
+        if not isinstance(self.down, (bool, np.bool_)):
+            raise ConfigError(f"stairs 'down' must be true or false, got {self.down!r}")
         if not self.name:
-            object.__setattr__(self, "name", f"stairs(h={self.step_height:g},l={self.step_length:g})")
+            way = ",down" if self.down else ""
+            object.__setattr__(self, "name", f"stairs(h={self.step_height:g},l={self.step_length:g}{way})")
+
+    @property
+    def begin(self) -> float:
+        """Where the stairs' ground starts along x (the floor is before it)."""
+        return self.start - self.landing if self.down else -np.inf
 
     @property
     def end(self) -> float:
-        return self.start + (self.n_steps - 1) * self.step_length + self.landing
+        """Where the stairs' ground ends along x (the floor is after it)."""
+        return self.start + (self.n_steps - 1) * self.step_length + (0.0 if self.down else self.landing)
 
     def height(self, xy: np.ndarray) -> np.ndarray:
         def profile(x):
-            return self.step_height * np.clip(np.floor((x - self.start) / self.step_length) + 1.0, 0.0, self.n_steps)
+            steps = np.floor((x - self.start) / self.step_length) + 1.0
+            if self.down:
+                steps = self.n_steps - steps
+            return self.step_height * np.clip(steps, 0.0, self.n_steps)
 
         return _along_x(self, xy, profile)
 
     def max_height(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        return _max_rising(self, lo, hi)
+        return _max_falling(self, lo, hi) if self.down else _max_rising(self, lo, hi)
 
     def boxes(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """(centre, half size) of each step: boxes from 0.1 m below the floor to the step's top."""
         out = []
         for k in range(1, self.n_steps + 1):
-            x0 = self.start + (k - 1) * self.step_length
-            length = self.landing if k == self.n_steps else self.step_length
-            top = k * self.step_height
+            if self.down:  # box 1 is the top landing, then the steps down
+                x0 = self.start - self.landing if k == 1 else self.start + (k - 2) * self.step_length
+                length = self.landing if k == 1 else self.step_length
+                top = (self.n_steps - k + 1) * self.step_height
+            else:
+                x0 = self.start + (k - 1) * self.step_length
+                length = self.landing if k == self.n_steps else self.step_length
+                top = k * self.step_height
             out.append((np.array([x0 + length / 2, 0.0, (top - 0.1) / 2]),
                         np.array([length / 2, self.width / 2, (top + 0.1) / 2])))
         return out
@@ -193,6 +216,10 @@ class Slope:
     @property
     def rise(self) -> float:
         return self.length * np.tan(np.radians(self.angle_deg))
+
+    @property
+    def begin(self) -> float:
+        return -np.inf
 
     @property
     def end(self) -> float:
@@ -247,10 +274,12 @@ def rough(grid: TerrainGrid, amplitude: float = 0.03, cell: float = 0.2, seed: i
 
 
 def _along_x(terrain: Stairs | Slope, xy: np.ndarray, profile) -> np.ndarray:
-    """Height of a terrain whose `profile(x)` spans |y| <= width / 2 up to x = end (floor elsewhere)."""
+    """Height of a terrain whose `profile(x)` spans |y| <= width / 2 from x = begin (if it has one)
+    up to x = end (floor elsewhere)."""
     xy = np.asarray(xy, dtype=float)
     x, y = xy[..., 0], xy[..., 1]
-    return np.where((x < terrain.end) & (np.abs(y) <= 0.5 * terrain.width), profile(x), 0.0)
+    inside = (x >= terrain.begin) & (x < terrain.end) & (np.abs(y) <= 0.5 * terrain.width)
+    return np.where(inside, profile(x), 0.0)
 
 
 def _max_rising(terrain: Stairs | Slope, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -260,6 +289,16 @@ def _max_rising(terrain: Stairs | Slope, lo: np.ndarray, hi: np.ndarray) -> np.n
     x = np.minimum(hi[:, 0], np.nextafter(terrain.end, -np.inf))
     half = 0.5 * terrain.width
     touches = (lo[:, 0] < terrain.end) & (lo[:, 1] <= half) & (hi[:, 1] >= -half)
+    return np.where(touches, terrain.height(np.stack([x, np.zeros_like(x)], -1)), 0.0)
+
+
+def _max_falling(terrain: Stairs, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Highest point over boxes [lo, hi] (k, 2) of a terrain that never rises along x after its
+    begin (and is the floor before it): its height at the box's smallest x from the begin on."""
+    lo, hi = np.atleast_2d(lo), np.atleast_2d(hi)
+    x = np.maximum(lo[:, 0], terrain.begin)
+    half = 0.5 * terrain.width
+    touches = (hi[:, 0] >= terrain.begin) & (lo[:, 1] <= half) & (hi[:, 1] >= -half)
     return np.where(touches, terrain.height(np.stack([x, np.zeros_like(x)], -1)), 0.0)
 
 

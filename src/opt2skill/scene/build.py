@@ -1,0 +1,75 @@
+"""A scene in MuJoCo: the robot, its ground and its props in one model.
+
+`build_model(robot, scene)` is the one way a scene becomes an MjModel. The ground is a
+`TerrainScene` of the scene's single terrain (the same geoms and placement the batched simulator
+uses); fixed props are boxes of the world body; a `Box` prop is a body with a free joint and the
+given mass. Props come after the robot in the tree, so the robot's qpos, qvel, controls and sensors
+keep their places at the front and a prop's free joint follows (`prop_qpos`).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from opt2skill.model.mujoco_model import FLOOR_FRICTION, GROUND_CONAFFINITY, GROUND_CONTYPE
+from opt2skill.model.robot import Robot
+from opt2skill.scene.description import Scene
+from opt2skill.scene.ground import TerrainScene
+from opt2skill.scene.props import Prop
+
+PROP_RGBA = {"box": [0.75, 0.55, 0.3, 1.0], "shelf": [0.55, 0.45, 0.35, 1.0], "desk": [0.6, 0.5, 0.4, 1.0]}
+
+
+def build_model(robot: Robot, scene: Scene) -> mujoco.MjModel:
+    """The robot standing in `scene`: floor or terrain, props, PD actuators and sensors."""
+    spec = robot.mj_spec()
+    ground = add_scene(spec, scene)
+    model = robot.compile(spec)
+    show_ground(model, ground)
+    return model
+
+
+def add_scene(spec: mujoco.MjSpec, scene: Scene) -> TerrainScene:
+    """Add the scene's ground geoms and props to a robot spec (with its floor). Compile it, then
+    call `show_ground` with the returned ground."""
+    ground = TerrainScene([scene.ground])
+    ground.add_to(spec)
+    for prop in scene.props:
+        add_prop(spec, prop)
+    return ground
+
+
+def show_ground(model: mujoco.MjModel, ground: TerrainScene) -> None:
+    """Place and enable the ground geoms in a model compiled from a spec `add_scene` filled."""
+    ground.bind(model)
+    ground.apply(model, 0)
+
+
+def add_prop(spec: mujoco.MjSpec, prop: Prop) -> None:
+    """A fixed prop's geoms on the world body, or a box on its own free body. MuJoCo names are
+    `NAME/GEOM` (fixed) and the body `NAME` with joint `NAME/free` (free)."""
+    look = dict(type=mujoco.mjtGeom.mjGEOM_BOX, contype=GROUND_CONTYPE, conaffinity=GROUND_CONAFFINITY,
+                friction=[prop.friction, *FLOOR_FRICTION[1:]], rgba=PROP_RGBA[prop.kind])
+    if prop.fixed:
+        for g in prop.geoms():
+            spec.worldbody.add_geom(name=f"{prop.name}/{g.name}", size=g.half, pos=g.centre, quat=g.quat, **look)
+        return
+    (g,) = prop.geoms()
+    # The robot's MJCF compiles with inertiafromgeom="false": the box's inertia is given, uniform.
+    a, b, c = 2 * g.half
+    inertia = prop.mass / 12 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
+    # ipos must be set: unset (NaN) it compiles to the body's own position, off the centre.
+    body = spec.worldbody.add_body(name=prop.name, pos=g.centre, quat=g.quat, mass=prop.mass, ipos=[0.0, 0.0, 0.0],
+                                   inertia=inertia, explicitinertial=True)
+    body.add_freejoint(name=f"{prop.name}/free")
+    body.add_geom(name=prop.name, size=g.half, **look)
+
+
+def prop_qpos(model: mujoco.MjModel, name: str) -> slice:
+    """Where a free prop's position and quaternion (w, x, y, z) sit in qpos."""
+    jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{name}/free")
+    if jid < 0:
+        raise KeyError(f"the model has no free prop '{name}'")
+    adr = int(model.jnt_qposadr[jid])
+    return slice(adr, adr + 7)
