@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from eval_support import CLI, shared_run
+from eval_support import CLI, shared_run, write_dataset
 
 from opt2skill import pretrained
 from opt2skill.errors import ConfigError, DataError
@@ -63,6 +63,19 @@ def test_the_demo_evaluates_a_shipped_policy_of_its_task_beside_its_own(shipped,
     assert report["policy"]["run"] == str((root / "squat").resolve()) and len(report["trajectories"]) == 2
     assert _evaluate_shipped("walk", request, tmp_path / "none", root) == []  # nothing shipped for it here
     assert not (tmp_path / "none").exists()
+
+
+def test_a_shipped_policy_plays_on_given_references_of_its_task_only(shipped, tmp_path):
+    from opt2skill.data.reader import Dataset
+    from opt2skill.rl.session import play
+
+    root, _, _, dataset = shipped
+    directory = pretrained.pretrained_run("squat", root)
+    result = play(directory, n=1, dataset=dataset)  # its own training dataset is gone: the given one is used
+    assert len(result.motions) == 1 and result.motions[0].steps > 0
+    walks = write_dataset(tmp_path / "walks", [Dataset.open(dataset)[0]], task="walk")
+    with pytest.raises(DataError, match="holds 'walk' references of robot 'digit'; the policy tracks 'squat'"):
+        play(directory, n=1, dataset=walks)
 
 
 def test_a_tampered_missing_or_unknown_policy_is_refused(shipped, tmp_path):
