@@ -33,7 +33,7 @@ def template(path: str | None, frames: int):
     if path:
         return Dataset.open(path)[0]
     from opt2skill.model import load_robot
-    from opt2skill.trajopt.registry import get_task
+    from opt2skill.tasks import get_task
 
     traj = get_task("squat", load_robot("digit")).solve({"depth": 0.1}, 0)
     reps = -(-frames // traj.num_frames)

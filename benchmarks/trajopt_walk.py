@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 from opt2skill.data.validate import ValidationConfig, validate  # noqa: E402
 from opt2skill.errors import SolverError  # noqa: E402
 from opt2skill.model import load_robot  # noqa: E402
-from opt2skill.trajopt.registry import get_task  # noqa: E402
+from opt2skill.tasks import get_task  # noqa: E402
 
 
 GAINS = {"solver.keep_gains": True}

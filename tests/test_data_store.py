@@ -16,7 +16,7 @@ from opt2skill.data.store import ACCEPTED, FAILED, REJECTED, DatasetStore, Outco
 from opt2skill.data.trajfile import read_frames, read_meta, read_trajectory, write_trajectory
 from opt2skill.errors import DataError
 from opt2skill.model import load_robot
-from opt2skill.trajopt.registry import get_task
+from opt2skill.tasks import get_task
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from opt2skill.data.record import build_trajectory
 from opt2skill.data.validate import ValidationConfig, validate
 from opt2skill.errors import ConfigError
 from opt2skill.model import load_robot
-from opt2skill.trajopt.registry import get_task
+from opt2skill.tasks import get_task
 
 CONFIG = ValidationConfig().with_overrides({"replay.window": 0.5})
 

@@ -21,7 +21,7 @@ from opt2skill.rl.distill import Distiller, LabelBuffer
 from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
 from opt2skill.rl.policy import Policy, build_actor
 from opt2skill.rl.trainer import Trainer
-from opt2skill.trajopt.registry import get_task
+from opt2skill.tasks import get_task
 
 ROBOT = load_robot("digit")
 SMALL = DistillConfig(updates_per_iteration=8, batch_size=512, buffer_samples=20_000)

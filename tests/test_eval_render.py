@@ -9,7 +9,7 @@ import pytest
 
 from opt2skill.eval.render import render_video, scene_model
 from opt2skill.model import load_robot
-from opt2skill.trajopt.registry import get_task
+from opt2skill.tasks import get_task
 
 
 @pytest.fixture(scope="module")

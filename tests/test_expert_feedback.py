@@ -20,7 +20,7 @@ from opt2skill.expert.lie import state_diff
 from opt2skill.expert.standing import StandingLQR, standing_segments
 from opt2skill.model import load_robot
 from opt2skill.sim import MujocoBatchedSim, SimConfig
-from opt2skill.trajopt.registry import get_task
+from opt2skill.tasks import get_task
 
 
 @pytest.fixture(scope="module")

@@ -22,7 +22,7 @@ from opt2skill.data.trajfile import read_trajectory
 from opt2skill.model import load_robot
 from opt2skill.trajopt.generate import GenerateRequest, generate, process_results
 from opt2skill.trajopt.jobs import Job
-from opt2skill.trajopt.registry import get_task
+from opt2skill.tasks import get_task
 
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "200"}
 

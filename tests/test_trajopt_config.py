@@ -7,7 +7,7 @@ import pytest
 from opt2skill.errors import ConfigError
 from opt2skill.model import load_robot
 from opt2skill.trajopt.config import load_overrides
-from opt2skill.trajopt.registry import available_tasks, get_task
+from opt2skill.tasks import available_tasks, get_task
 
 WALK = dict(speed=0.5, clearance=0.15, step_duration=0.35, double_support=0.2, lateral_speed=0.0,
             yaw_rate=0.0, height_offset=0.0)
@@ -19,7 +19,7 @@ def robot():
 
 
 def test_registry_lists_tasks_and_names_them_on_error(robot):
-    assert {"squat", "walk"} <= set(available_tasks())
+    assert {"squat", "stairs", "walk"} <= set(available_tasks())
     with pytest.raises(ConfigError, match=r"unknown task 'run'; tasks: .*squat.*walk"):
         get_task("run", robot)
 

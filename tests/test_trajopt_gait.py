@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from opt2skill.data.record import FRAME_DT
-from opt2skill.trajopt.gait import Foothold, GaitSpec, plan_gait, swing_reference
+from opt2skill.trajopt.skills.gait import Foothold, GaitSpec, plan_gait, swing_reference
 
 FEET = {
     "left_foot": Foothold("left_foot", np.array([0.0, 0.1, 0.0]), 0.0),

@@ -10,7 +10,7 @@ import pytest
 from opt2skill.data.record import FRAME_DT
 from opt2skill.model import load_robot
 from opt2skill.trajopt.integrator import MatchedEulerModel
-from opt2skill.trajopt.registry import get_task
+from opt2skill.tasks import get_task
 
 
 @pytest.fixture(scope="module")

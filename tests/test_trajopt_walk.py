@@ -5,7 +5,7 @@ import pytest
 
 from opt2skill.data.checks import frame_dynamics_residual, site_poses, touchdown_frames
 from opt2skill.model import load_robot
-from opt2skill.trajopt.registry import get_task
+from opt2skill.tasks import get_task
 
 PARAMS = dict(speed=0.6, clearance=0.12, step_duration=0.36, double_support=0.2, lateral_speed=0.0,
               yaw_rate=0.0, height_offset=-0.02)

@@ -22,9 +22,6 @@ from pathlib import Path
 from opt2skill.cli.console import console, figures_table
 from opt2skill.errors import ConfigError, DataError
 
-# Sampling ranges of the demo's references: moderate walking speeds, which the optimizer and its
-# validation accept most often (docs/trajopt.md); other parameters keep the task's ranges.
-DEMO_RANGES = {"walk": {"speed": (0.5, 1.0)}}
 
 
 @dataclass(frozen=True)
@@ -67,7 +64,9 @@ def run_demo(s: DemoSettings) -> dict[str, Path]:
     out = Path(s.out)
     data = out / "data"
     train_dir, test_dir, run = data / f"{s.task}_train", data / f"{s.task}_test", out / "run"
-    ranges = s.ranges or DEMO_RANGES.get(s.task, {})
+    from opt2skill.tasks import task_info
+
+    ranges = s.ranges or task_info(s.task).demo_ranges  # the task's own small, reliable setting
     starts: list[tuple[str, float]] = []
 
     def stage(name: str):

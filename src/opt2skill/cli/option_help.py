@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from opt2skill.data.figures import FIGURES
-from opt2skill.trajopt.task_params import TASK_PARAMS
 
 
 def _unit(unit: str) -> str:
@@ -11,9 +10,12 @@ def _unit(unit: str) -> str:
 
 
 def set_help() -> str:
+    from opt2skill.tasks import available_tasks, task_info
+
+    params_of = {name: task_info(name).params for name in available_tasks()}
     tasks = [f"{task}: " + ", ".join(
         f"{p.name} in [{p.allowed[0]:g}, {p.allowed[1]:g}]{_unit(p.unit)} (default {p.default_range[0]:g}:"
-        f"{p.default_range[1]:g})" for p in params) for task, params in TASK_PARAMS.items()]
+        f"{p.default_range[1]:g})" for p in params) for task, params in params_of.items()]
     return "Sampling range: name=lo:hi or name=value (repeatable). Parameters, allowed range (default): " + \
         "; ".join(tasks) + "."
 

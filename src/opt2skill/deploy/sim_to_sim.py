@@ -18,6 +18,7 @@ from opt2skill.errors import DataError
 from opt2skill.eval.metrics import tracking_errors
 from opt2skill.eval.references import check_metric_fields, select_references
 from opt2skill.eval.report import EvalReport, TrajectoryResult
+from opt2skill.eval.task_metrics import task_metrics
 from opt2skill.provenance import provenance
 
 
@@ -42,7 +43,7 @@ def deploy_sim(onnx_path: Path, dataset_dir: Path, n: int = 20, split: str = "he
             rollouts.append(player.run(reference))
             bar.update(reference.num_frames - 1)
     results = [TrajectoryResult(index, r.reference.params, seen, r.cause, r.tracked.num_frames, r.reference.num_frames,
-                                tracking_errors(r.reference, r.tracked, fell=r.fell))
+                                tracking_errors(r.reference, r.tracked, fell=r.fell), task_metrics(r.reference, r.tracked))
                for r, index, seen in zip(rollouts, refs.indices, refs.seen)]
     training = meta.training
     name = f"{Path(onnx_path).name} (player, {1 / config.physics_dt:.0f} Hz PD)"

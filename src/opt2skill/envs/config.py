@@ -18,7 +18,6 @@ ABLATIONS = {  # name -> (reference contact forces, reference joint torques): ob
     "pos_t": (False, True),
     "pos_f_t": (True, True),
 }
-TASKS_WITHOUT_BASE_POSITION = ("walk",)  # Table I: "the Base Pos. reward is not included in walking"
 KERNELS = ("exp_sq", "exp_l1", "sq")
 
 
@@ -276,7 +275,7 @@ def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10
         raise ConfigError(f"ablation must be one of {', '.join(ABLATIONS)}, got '{ablation}'")
     force, torque = ABLATIONS[ablation]
     rewards = RewardConfig()
-    if task in TASKS_WITHOUT_BASE_POSITION:
+    if task and not _tracks_base_position(task):
         rewards = dataclasses.replace(rewards, base_pos=dataclasses.replace(rewards.base_pos, weight=0.0))
     rewards = dataclasses.replace(
         rewards,
@@ -288,6 +287,14 @@ def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10
                             actions=ActionConfig(kp_scale=kp_scale))
     config.check()
     return config
+
+
+def _tracks_base_position(task: str) -> bool:
+    """The task's registration says whether the base-position reward applies (Table I); motions of
+    no registered task (recorded, retargeted) track it."""
+    from opt2skill.tasks import available_tasks, task_info
+
+    return task not in available_tasks() or task_info(task).track_base_position
 
 
 def nominal_ranges(randomization: RandomizationConfig) -> dict:

@@ -25,6 +25,7 @@ from opt2skill.errors import ConfigError, DataError
 from opt2skill.eval.references import ReferenceSet, check_metric_fields, position_fingerprint, select_references
 from opt2skill.eval.report import EvalReport, TrajectoryResult, read_report
 from opt2skill.eval.rollout import Rollout, planned_steps, rollout
+from opt2skill.eval.task_metrics import task_metrics
 from opt2skill.model import load_robot
 from opt2skill.model.robot import Robot
 from opt2skill.provenance import provenance
@@ -179,7 +180,7 @@ def eval_config(tracking: TrackingConfig, randomize: bool = False, noise: bool =
 
 def result_of(r: Rollout, index: int, seen: bool | None) -> TrajectoryResult:
     return TrajectoryResult(index, r.reference.params, seen, r.cause, r.tracked.num_frames, r.reference.num_frames,
-                            r.errors())
+                            r.errors(), task_metrics(r.reference, r.tracked))
 
 
 def step_bar(references, enabled: bool, desc: str):

@@ -66,6 +66,7 @@ class TrajectoryResult:
     frames: int  # frames tracked (the start frame included)
     reference_frames: int
     errors: TrackingErrors
+    task_metrics: dict[str, tuple[float, str]] = field(default_factory=dict)  # the task's own: name -> (value, unit)
 
     @property
     def fell(self) -> bool:
@@ -73,7 +74,8 @@ class TrajectoryResult:
 
     def to_dict(self) -> dict[str, Any]:
         return {"index": self.index, "params": self.params, "seen_in_training": self.seen, "cause": self.cause,
-                "frames": self.frames, "reference_frames": self.reference_frames, **self.errors.as_dict()}
+                "frames": self.frames, "reference_frames": self.reference_frames, **self.errors.as_dict(),
+                "task_metrics": {k: {"value": v, "unit": u} for k, (v, u) in self.task_metrics.items()}}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrajectoryResult:
@@ -82,8 +84,12 @@ class TrajectoryResult:
             raise DataError(f"an evaluation report's trajectory lacks {missing}")
         values = {k: (float("nan") if d[k] is None else float(d[k])) for k in METRICS}
         errors = TrackingErrors(**values, frames=int(d["frames"]), fell=bool(d["fell"]))
+        try:
+            task = {k: (float(v["value"]), str(v["unit"])) for k, v in d.get("task_metrics", {}).items()}
+        except (TypeError, KeyError, ValueError, AttributeError):
+            raise DataError("an evaluation report's task metrics are not {name: {value, unit}}") from None
         return cls(int(d["index"]), d["params"], d["seen_in_training"], d["cause"], int(d["frames"]),
-                   int(d["reference_frames"]), errors)
+                   int(d["reference_frames"]), errors, task)
 
 
 @dataclass
@@ -101,6 +107,17 @@ class EvalReport:
 
     def summary(self) -> dict[str, Summary]:
         return summarize([r.errors for r in self.results])
+
+    def task_summary(self) -> dict[str, tuple[float, float, int, str]]:
+        """Each task metric over the references: (mean, SE, n, unit)."""
+        names = dict.fromkeys(k for r in self.results for k in r.task_metrics)
+        out = {}
+        for name in names:
+            values = np.array([r.task_metrics[name][0] for r in self.results if name in r.task_metrics])
+            unit = next(r.task_metrics[name][1] for r in self.results if name in r.task_metrics)
+            se = float(values.std(ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
+            out[name] = (float(values.mean()), se, len(values), unit)
+        return out
 
     @property
     def success_rate(self) -> float:
@@ -130,6 +147,7 @@ class EvalReport:
             "summary": {name: {"mean": s.mean, "se": s.se, "n": s.n, "unit": METRICS[name][0]} for name, s in summary.items()},
             "success_rate": self.success_rate, "mean_episode_length_s": self.mean_episode_length,
             "mean_episode_fraction": self.mean_episode_fraction, "trajectories": [r.to_dict() for r in self.results],
+            "task_summary": {k: {"mean": m, "se": se, "n": n, "unit": u} for k, (m, se, n, u) in self.task_summary().items()},
             "paper": {row: {k: {"mean": m, "se": s} for k, (m, s) in values.items()} for row, values in PAPER_ROWS.items()},
             "elapsed_s": self.elapsed, "provenance": self.provenance,
         }
@@ -191,6 +209,11 @@ class EvalReport:
         lines += ["## Contact force, torque, success (Table IV quantities)", ""]
         lines += _markdown_table(["policy", *(header(m) for m in TABLE_IV), "success (falls counted)", "mean episode length"],
                                  self.extra_rows())
+        task = self.task_summary()
+        if task:
+            lines += ["", "## Task metrics (the task's own; mean ± SE over references)", ""]
+            lines += _markdown_table(["policy", *(f"{k} ({u})" if u else k for k, (_, _, _, u) in task.items())],
+                                     [[self.title(), *(mean_se(Summary(m, se, n)) for m, se, n, _ in task.values())]])
         lines += ["", "## Per reference", ""]
         lines += _markdown_table(["index", "trained on", "end", "tracked (s)", *(label(m) for m in (*TABLE_III, *TABLE_IV))],
                                  self.trajectory_rows())

@@ -22,6 +22,7 @@ import numpy as np
 from opt2skill.data.record import Trajectory, build_trajectory
 from opt2skill.model.convert import qpos_pin_to_mj, qvel_pin_to_mj
 from opt2skill.model.robot import Robot
+from opt2skill.scene.description import Scene
 from opt2skill.trajopt.frames import Frames, contact_wrenches
 from opt2skill.trajopt.phases import Problem
 from opt2skill.trajopt.solver import Solution
@@ -67,6 +68,7 @@ def to_trajectory(
     solver: dict,
     provenance: dict,
     knots: dict[str, np.ndarray],
+    scene: Scene | None = None,
 ) -> Trajectory:
     qpos = qpos_pin_to_mj(frames.q)
     qvel = qvel_pin_to_mj(qpos, frames.v)
@@ -84,4 +86,5 @@ def to_trajectory(
         solver=solver,
         provenance=provenance,
         knots=knots,
+        scene=scene,
     )

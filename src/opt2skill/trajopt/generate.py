@@ -55,7 +55,7 @@ def process_results(jobs: list[Job], workers: int, timeout: float | None) -> Ite
 def _parse_task(request: GenerateRequest):
     """Robot, task, parameter space (with --set ranges) and validation config; errors before any work."""
     from opt2skill.model import load_robot
-    from opt2skill.trajopt.registry import get_task
+    from opt2skill.tasks import get_task
 
     robot = load_robot(request.robot)
     task = get_task(request.task, robot, _overrides(request))

@@ -53,7 +53,7 @@ def _load(job: Job) -> tuple[Any, Any, Any]:
     if _loaded.get("key") != key:
         from opt2skill.data.validate import ValidationConfig
         from opt2skill.model import load_robot
-        from opt2skill.trajopt.registry import get_task
+        from opt2skill.tasks import get_task
 
         robot = load_robot(job.robot)
         _loaded.update(key=key, robot=robot, task=get_task(job.task, robot, job.overrides),

@@ -1,14 +1,18 @@
 """The pipeline every phase-based task shares: plan -> problem -> Box-FDDP -> 200 Hz frames -> record.
 
-A task subclass supplies its config dataclass, its parameters and `plan(params)` (phases, start
-state, optional initial guess); it may replace `optimize` with its own solve strategy.
+A task subclass supplies its config (a `TaskConfig`), its parameters and `plan(params)` (phases with
+the task's own costs, start state, scene, optional initial guess); it may replace `optimize` with its
+own solve strategy. The standard costs every node gets (state and torque regularization towards the
+plan's posture, heavier on the terminal node) are added here, not by each task; the builder adds
+the physical limits (cones, joint ranges, torque bounds).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from abc import abstractmethod
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar
 
 import numpy as np
@@ -17,6 +21,7 @@ from opt2skill.data.record import Trajectory
 from opt2skill.errors import SolverError
 from opt2skill.model.robot import Robot
 from opt2skill.provenance import provenance
+from opt2skill.scene.description import Scene
 from opt2skill.trajopt import frames as frames_mod
 from opt2skill.trajopt.config import apply_overrides, config_to_dict
 from opt2skill.trajopt.extract import knots, to_trajectory
@@ -33,10 +38,12 @@ class Plan:
     x0: np.ndarray  # start state, Pinocchio layout
     guess: Callable[[Problem], list[np.ndarray]] | None = None  # initial states for a built problem
     context: Any = None  # what the task's own solve strategy needs (e.g. the gait plan)
+    scene: Scene = field(default_factory=Scene)  # what the motion is made on; stored in the record
+    posture: np.ndarray | None = None  # the regularization's reference state (default: x0)
 
 
 class PhaseTask(Task):
-    """A task whose config has `contact`, `feasibility`, `solver` sections and a `ranges` mapping."""
+    """A task whose config is a `TaskConfig` (posture, contact, feasibility, solver, ranges)."""
 
     config_class: ClassVar[type]
     params: ClassVar[tuple[Param, ...]]
@@ -64,7 +71,8 @@ class PhaseTask(Task):
         params = self.param_space().check(params)
         plan = self.plan(params)
         settings = self.config.solver
-        problem = self.builder.build(plan.phases, plan.x0, settings.dt, integrator=settings.integrator)
+        phases = self._with_standard_costs(plan)
+        problem = self.builder.build(phases, plan.x0, settings.dt, integrator=settings.integrator)
         solution = self.optimize(problem, plan)
         solver_knots = knots(problem, solution, settings.keep_gains)  # before the rollout moves contacts
         if settings.completion == "track":
@@ -101,9 +109,24 @@ class PhaseTask(Task):
             solver=solver_stats,
             provenance=provenance(self.robot.hash, task_config=config_to_dict(self.config)),
             knots=solver_knots,
+            scene=plan.scene,
         )
         traj.solver["total_time"] = time.perf_counter() - start
         return traj
+
+    def _with_standard_costs(self, plan: Plan) -> list[Phase]:
+        """The plan's phases, each node's task costs followed by the posture and torque terms."""
+        posture = self.config.posture
+        weights = posture.weights(self.robot)
+        reference = plan.x0 if plan.posture is None else plan.posture
+
+        def standard(costs):
+            def all_costs(knot, terms) -> list:
+                return list(costs(knot, terms)) + posture.terms(terms, reference, weights, knot.kind)
+
+            return all_costs
+
+        return [dataclasses.replace(phase, costs=standard(phase.costs)) for phase in plan.phases]
 
     def _cones(self, problem: Problem) -> frames_mod.ContactCones:
         """The contact cones a rollout keeps the 200 Hz wrenches in: the robot's friction and soles,

@@ -63,7 +63,7 @@ def _recheck(path: str, status: str, task: str, robot: str, config: dict[str, An
     from opt2skill.data.trajfile import read_meta, read_trajectory
     from opt2skill.data.validate import validate
     from opt2skill.model import load_robot
-    from opt2skill.trajopt.registry import get_task
+    from opt2skill.tasks import get_task
 
     key = (task, robot)
     if _loaded.get("key") != key:

@@ -15,7 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 from opt2skill.trajopt.config import require
-from opt2skill.trajopt.gait import GaitPlan
+from opt2skill.trajopt.skills.gait import GaitPlan
 from opt2skill.trajopt.phases import Problem
 
 
@@ -81,6 +81,7 @@ class StrideGuess:
         R = np.array([[np.cos(dpsi), -np.sin(dpsi)], [np.sin(dpsi), np.cos(dpsi)]])
         out = x.copy()
         out[:2] = R @ (x[:2] - c_a) + c_b
+        out[2] += self.gait.support_height(t_to) - self.gait.support_height(t_from)  # stairs: a stride climbs
         turn = pin.Quaternion(pin.utils.rpyToMatrix(0.0, 0.0, dpsi))
         out[3:7] = (turn * pin.Quaternion(x[3:7])).coeffs()  # x, y, z, w
         return out

@@ -9,14 +9,20 @@ Pure geometry and timing (no optimization): the walking task turns a `GaitPlan` 
 - Footholds: each foot lands where the CoM path will be at the middle of that stance, offset by the
   stand pose's foot offset in the heading frame; its yaw is the heading there. So the last two
   steps bring the feet side by side, and stepping in place (speed 0) lands on the same spots.
-- Swing references are cubic splines: horizontal position and yaw move with 3s^2 - 2s^3; height
-  rises with the same cubic to the clearance at mid-swing and comes down symmetrically, with zero
-  velocity at lift-off, apex and touchdown.
+- A task may move each foothold (`place`: stairs put every foot on a tread, clear of the nosings,
+  at the tread's height); the support height is the mean of the two feet's ground heights, each
+  foot's moving smoothly from its lift-off to its touchdown height (the base follows it on stairs).
+- Swing references are cubic splines. `swing_reference` (level ground): horizontal position and yaw
+  move with 3s^2 - 2s^3; height rises with the same cubic to the clearance at mid-swing and comes down
+  symmetrically, with zero velocity at lift-off, apex and touchdown. `stair_swing_reference`: the
+  foot first rises to the clearance above the higher foothold, then moves across, then lowers, so
+  that the toe and heel pass over the nosings between.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -83,15 +89,28 @@ class GaitPlan:
     duration: float
     stand_start: float
     walk_end: float  # touchdown of the last step
+    support_z: np.ndarray | None = None  # (T,) mean ground height under the two feet (None: level)
 
     def sample(self, t: float) -> tuple[np.ndarray, float, np.ndarray]:
         """CoM xy, heading and world velocity (vx, vy, wz) at time t."""
         i = min(int(round(t / FRAME_DT)), len(self.times) - 1)
         return self.com_xy[i], float(self.heading[i]), self.velocity[i]
 
+    def support_height(self, t: float) -> float:
+        """Support height at time t relative to the start (0 on level ground)."""
+        if self.support_z is None:
+            return 0.0
+        i = min(int(round(t / FRAME_DT)), len(self.times) - 1)
+        return float(self.support_z[i] - self.support_z[0])
 
-def plan_gait(spec: GaitSpec, feet: dict[str, Foothold], com_xy0: np.ndarray) -> GaitPlan:
-    """The plan for `spec`, starting from the stand footholds `feet` (keys 'left_foot', 'right_foot')."""
+
+# (foot, nominal sole-centre position (3,), yaw) -> the foothold's sole-centre position (3,)
+PlaceFoot = Callable[[str, np.ndarray, float], np.ndarray]
+
+
+def plan_gait(spec: GaitSpec, feet: dict[str, Foothold], com_xy0: np.ndarray, place: PlaceFoot | None = None) -> GaitPlan:
+    """The plan for `spec`, starting from the stand footholds `feet` (two feet, left first);
+    `place` moves each planned foothold (default: where the CoM path puts it, at its start height)."""
     step = on_frame_grid(spec.step_duration)
     ds = on_frame_grid(spec.double_support * step) if spec.double_support > 0 else 0.0
     ss = on_frame_grid(step - ds)
@@ -124,8 +143,9 @@ def plan_gait(spec: GaitSpec, feet: dict[str, Foothold], com_xy0: np.ndarray) ->
 
     offsets = {name: f.position[:2] - com_xy0 for name, f in feet.items()}  # heading 0 at the start
 
-    first = "right_foot" if (spec.lateral_speed < 0 or (spec.lateral_speed == 0 and spec.yaw_rate < 0)) else "left_foot"
-    other = {"left_foot": "right_foot", "right_foot": "left_foot"}
+    left, right = feet  # the robot's feet, left first
+    first = right if (spec.lateral_speed < 0 or (spec.lateral_speed == 0 and spec.yaw_rate < 0)) else left
+    other = {left: right, right: left}
     current = dict(feet)
     steps: list[Step] = []
     swing = first
@@ -137,10 +157,16 @@ def plan_gait(spec: GaitSpec, feet: dict[str, Foothold], com_xy0: np.ndarray) ->
         mid = at(0.5 * (touchdown + next_liftoff))
         yaw = float(heading[mid])
         xy = com_xy[mid] + yaw_matrix(yaw)[:2, :2] @ offsets[swing]
-        target = Foothold(swing, np.array([xy[0], xy[1], feet[swing].position[2]]), yaw)
+        position = np.array([xy[0], xy[1], feet[swing].position[2]])
+        if place is not None:
+            position = np.asarray(place(swing, position, yaw), dtype=float)
+        target = Foothold(swing, position, yaw)
         steps.append(Step(start, liftoff, touchdown, swing, other[swing], current[swing], target))
         current[swing] = target
         swing = other[swing]
+    support_z = None
+    if any(abs(st.target.position[2] - st.origin.position[2]) > 1e-9 for st in steps):
+        support_z = _support_heights(times, steps, feet)
     return GaitPlan(
         steps=steps,
         times=times,
@@ -150,7 +176,19 @@ def plan_gait(spec: GaitSpec, feet: dict[str, Foothold], com_xy0: np.ndarray) ->
         duration=duration,
         stand_start=t0,
         walk_end=walk_end,
+        support_z=support_z,
     )
+
+
+def _support_heights(times: np.ndarray, steps: list[Step], feet: dict[str, Foothold]) -> np.ndarray:
+    """Mean of the two feet's heights, each moving with a smoothstep over its swing."""
+    heights = {name: np.full(len(times), f.position[2]) for name, f in feet.items()}
+    for step in steps:
+        s = (times - step.liftoff) / (step.touchdown - step.liftoff)
+        z = step.origin.position[2] + (step.target.position[2] - step.origin.position[2]) * smoothstep(s)
+        after = times >= step.liftoff
+        heights[step.swing][after] = z[after]
+    return np.mean(list(heights.values()), axis=0)
 
 
 def swing_reference(step: Step, t: float, clearance: float) -> tuple[np.ndarray, float, np.ndarray]:
@@ -169,6 +207,30 @@ def swing_reference(step: Step, t: float, clearance: float) -> tuple[np.ndarray,
     velocity = velocity.copy()
     velocity[2] += clearance * 6.0 * half * (1.0 - half) * (2.0 if s <= 0.5 else -2.0) / span
     return position, yaw, velocity
+
+
+def stair_swing_reference(step: Step, t: float, clearance: float) -> tuple[np.ndarray, float, np.ndarray]:
+    """Swing-foot position, yaw and linear velocity for a step between levels: up to `clearance`
+    above the higher foothold (first 35 % of the swing), across (15 to 85 %), down (last 35 %)."""
+    span = step.touchdown - step.liftoff
+    s = float(np.clip((t - step.liftoff) / span, 0.0, 1.0))
+    a, b = step.origin, step.target
+    top = max(a.position[2], b.position[2]) + clearance
+    across, d_across = _ramp(s, 0.15, 0.85)
+    up, d_up = _ramp(s, 0.0, 0.35)
+    down, d_down = _ramp(s, 0.65, 1.0)
+    position = a.position + (b.position - a.position) * across
+    velocity = (b.position - a.position) * d_across / span
+    position[2] = a.position[2] + (top - a.position[2]) * up - (top - b.position[2]) * down
+    velocity[2] = ((top - a.position[2]) * d_up - (top - b.position[2]) * d_down) / span
+    yaw = a.yaw + _wrap(b.yaw - a.yaw) * across
+    return position, yaw, velocity
+
+
+def _ramp(s: float, s0: float, s1: float) -> tuple[float, float]:
+    """smoothstep from 0 at s0 to 1 at s1, and its derivative with respect to s."""
+    u = float(np.clip((s - s0) / (s1 - s0), 0.0, 1.0))
+    return u * u * (3.0 - 2.0 * u), 6.0 * u * (1.0 - u) / (s1 - s0)
 
 
 def _wrap(angle: float) -> float:

@@ -13,14 +13,17 @@ import numpy as np
 import pinocchio as pin
 
 from opt2skill.data.record import Trajectory
+from opt2skill.tasks import TaskInfo
 from opt2skill.trajopt.config import require
+from opt2skill.trajopt.params import Param
 from opt2skill.trajopt.phase_task import PhaseTask, Plan
-from opt2skill.trajopt.task_params import TASK_PARAMS
 from opt2skill.trajopt.phases import Contact, Knot, Phase
-from opt2skill.trajopt.posture import Posture
-from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights, SolverSettings
+from opt2skill.trajopt.settings import SolverSettings
+from opt2skill.trajopt.task_config import TaskConfig
 
-PARAMS = TASK_PARAMS["squat"]
+PARAMS = (
+    Param("depth", allowed=(0.0, 0.2), default_range=(0.0, 0.15), unit="m", help="how far the CoM goes down"),
+)
 
 
 @dataclass(frozen=True)
@@ -30,21 +33,15 @@ class SquatThresholds:
 
 
 @dataclass(frozen=True)
-class SquatConfig:
+class SquatConfig(TaskConfig):
     duration: float = 1.6  # s, a multiple of solver.dt
     com_weight: float = 1e5
-    posture: Posture = field(default_factory=Posture)
-    contact: ContactSettings = field(default_factory=ContactSettings)
-    feasibility: FeasibilityWeights = field(default_factory=FeasibilityWeights)
-    solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.02, max_iter=100))
     thresholds: SquatThresholds = field(default_factory=SquatThresholds)
-    ranges: dict = field(default_factory=dict)  # parameter -> (low, high) sampling range
+    solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.02, max_iter=100))
 
-    def check(self) -> None:
+    def check_own(self) -> None:
         require(0.2 <= self.duration <= 10.0, f"duration = {self.duration:g} s must be in [0.2, 10] s")
         require(self.com_weight >= 0, "com_weight must be >= 0")
-        for section in (self.posture, self.contact, self.feasibility, self.solver):
-            section.check()
 
 
 class SquatTask(PhaseTask):
@@ -54,26 +51,20 @@ class SquatTask(PhaseTask):
 
     def plan(self, params: dict[str, float]) -> Plan:
         cfg = self.config
-        x0 = np.concatenate([self.robot.stand_q_pin, np.zeros(self.robot.nv)])
+        q0 = self.robot.stand_q_pin
+        x0 = np.concatenate([q0, np.zeros(self.robot.nv)])
         pm = self.robot.pin_model
         data = pm.createData()
-        q0 = x0[: pm.nq]
         pin.framesForwardKinematics(pm, data, q0)
         com0 = pin.centerOfMass(pm, data, q0).copy()
-        feet = tuple(
-            Contact(foot, data.oMf[self.builder.frame_id(foot)].copy())
-            for foot in (f.name for f in self.robot.config.feet)
-        )
+        feet = tuple(Contact(f.name, data.oMf[self.builder.frame_id(f.name)].copy()) for f in self.robot.config.feet)
         depth, period = params["depth"], cfg.duration
-        posture = cfg.posture.weights(self.robot)
 
         def costs(knot: Knot, terms):
             s = knot.time / period
             # sin^4: down and back up with zero velocity and acceleration at both ends
             target = com0 - np.array([0.0, 0.0, depth * np.sin(np.pi * s) ** 4])
-            out = [("com", terms.com(target), cfg.com_weight)]
-            out += cfg.posture.terms(terms, x0, posture, knot.kind)
-            return out
+            return [("com", terms.com(target), cfg.com_weight)]
 
         return Plan(phases=[Phase(period, feet, costs, "squat")], x0=x0)
 
@@ -85,3 +76,6 @@ class SquatTask(PhaseTask):
             "depth_error": {"value": abs(depth - traj.params["depth"]), "limit": th.depth_error, "unit": "m"},
             "end_error": {"value": float(abs(z[-1] - z[0])), "limit": th.end_error, "unit": "m"},
         }
+
+
+INFO = TaskInfo(name="squat", summary="squat by a CoM depth and stand up (1.6 s)", task=SquatTask, params=PARAMS)

@@ -1,0 +1,1 @@
+"""Motion skills tasks compose: phases with their costs, built from plans (gait, reaches, grasps)."""
