@@ -18,7 +18,9 @@ ABLATIONS = {  # name -> (reference contact forces, reference joint torques): ob
     "pos_t": (False, True),
     "pos_f_t": (True, True),
 }
-TASKS_WITHOUT_BASE_POSITION = ("walk",)  # Table I: "the Base Pos. reward is not included in walking"
+# Table I: "the Base Pos. reward is not included in walking"; the walking baselines (IK walks,
+# retargeted human walking) are trained the same way.
+TASKS_WITHOUT_BASE_POSITION = ("walk", "walk_ik", "walk_human")
 KERNELS = ("exp_sq", "exp_l1", "sq")
 
 
@@ -268,6 +270,19 @@ class TrackingConfig:
         )
         for part in (obs, self.actions, self.rewards, self.terminations, self.randomization, self.curriculum, self.episodes):
             part.check()
+
+
+def check_reference_inputs(ablation: str, has_dynamics: bool, source: str = "to") -> None:
+    """Kinematic references (IK, human motion) have no torques or contact forces: only `pos` can use them.
+
+    Refused rather than switched silently: the ablation is part of a checkpoint's identity.
+    """
+    force, torque = ABLATIONS.get(ablation, (False, False))
+    if not has_dynamics and (force or torque):
+        raise ConfigError(
+            f"these references are kinematic (source '{source}', has_dynamics=False: no joint torques or contact "
+            f"forces), so ablation '{ablation}' cannot observe or reward them; train with --ablation pos"
+        )
 
 
 def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10, kp_scale: float = 1.0) -> TrackingConfig:
