@@ -10,10 +10,11 @@ from opt2skill.trajopt.task import Task
 
 
 def _tasks() -> dict[str, type[Task]]:
+    from opt2skill.baselines.ik_walk import IKWalkTask
     from opt2skill.trajopt.squat import SquatTask
     from opt2skill.trajopt.walk import WalkTask
 
-    tasks: dict[str, type[Task]] = {task.name: task for task in (SquatTask, WalkTask)}
+    tasks: dict[str, type[Task]] = {task.name: task for task in (SquatTask, WalkTask, IKWalkTask)}
     return tasks
 
 
@@ -21,9 +22,13 @@ def available_tasks() -> list[str]:
     return sorted(_tasks())
 
 
-def get_task(name: str, robot: Robot, overrides: dict[str, Any] | None = None) -> Task:
-    """The task `name` for `robot`, its config defaults replaced by `overrides` (checked)."""
+def task_class(name: str) -> type[Task]:
     tasks = _tasks()
     if name not in tasks:
         raise ConfigError(f"unknown task '{name}'; tasks: {', '.join(sorted(tasks))}")
-    return tasks[name](robot, overrides)
+    return tasks[name]
+
+
+def get_task(name: str, robot: Robot, overrides: dict[str, Any] | None = None) -> Task:
+    """The task `name` for `robot`, its config defaults replaced by `overrides` (checked)."""
+    return task_class(name)(robot, overrides)

@@ -16,6 +16,10 @@ from opt2skill.trajopt.params import ParamSpace
 
 class Task(ABC):
     name: ClassVar[str]
+    # What the records are made by: "to" (optimization, with torques and contact forces) or a
+    # kinematic source ("ik", "human") whose records have `has_dynamics=False` (docs/baselines.md).
+    source: ClassVar[str] = "to"
+    has_dynamics: ClassVar[bool] = True
 
     def __init__(self, robot: Robot, overrides: dict[str, Any] | None = None):
         """`overrides`: values that replace the task config's defaults (unknown keys are errors)."""

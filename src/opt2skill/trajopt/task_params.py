@@ -22,4 +22,5 @@ WALK_PARAMS = (
     Param("height_offset", allowed=(-0.15, 0.05), default_range=(-0.05, 0.0), unit="m", help="base height change"),
 )
 
-TASK_PARAMS: dict[str, tuple[Param, ...]] = {"squat": SQUAT_PARAMS, "walk": WALK_PARAMS}
+# walk_ik (the IK baseline) samples the walk's space: same seed and index, same parameters.
+TASK_PARAMS: dict[str, tuple[Param, ...]] = {"squat": SQUAT_PARAMS, "walk": WALK_PARAMS, "walk_ik": WALK_PARAMS}

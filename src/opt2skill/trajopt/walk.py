@@ -20,7 +20,7 @@ import pinocchio as pin
 from opt2skill.data.record import Trajectory
 from opt2skill.errors import SolverError
 from opt2skill.trajopt.config import require
-from opt2skill.trajopt.gait import Foothold, GaitPlan, GaitSpec, plan_gait, swing_reference, yaw_matrix
+from opt2skill.trajopt.gait import Foothold, GaitPlan, swing_reference, yaw_matrix
 from opt2skill.trajopt.task_params import TASK_PARAMS
 from opt2skill.trajopt.phase_task import PhaseTask, Plan
 from opt2skill.trajopt.phases import Contact, Knot, Phase, Problem
@@ -28,11 +28,11 @@ from opt2skill.trajopt.posture import Posture
 from opt2skill.trajopt.receding import solve_receding
 from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights, SolverSettings
 from opt2skill.trajopt.solver import Solution
+from opt2skill.trajopt.walk_gait import FEET, check_gait_timing, walk_gait
 from opt2skill.trajopt.walk_strategy import RecedingSettings, StrideGuess
 
 PARAMS = TASK_PARAMS["walk"]
 
-FEET = ("left_foot", "right_foot")
 BASE_SITE_KEY = "imu_site"
 
 
@@ -77,11 +77,7 @@ class WalkConfig:
     ranges: dict = field(default_factory=dict)  # parameter -> (low, high) sampling range
 
     def check(self) -> None:
-        require(1.0 <= self.duration <= 60.0, f"duration = {self.duration:g} s must be in [1, 60] s")
-        require(self.steps >= 0, "steps must be >= 0 (0: fit the duration)")
-        require(self.stand_start >= 0.05 and self.stand_end >= 0.1, "stand_start >= 0.05 s and stand_end >= 0.1 s")
-        require(self.ramp >= 0, "ramp must be >= 0 s")
-        require(-0.2 <= self.base_height <= 0.05, "base_height must be in [-0.2, 0.05] m")
+        check_gait_timing(self)
         sections = (self.weights, self.posture, self.contact, self.feasibility, self.solver, self.receding, self.thresholds)
         for section in sections:
             section.check()
@@ -94,30 +90,7 @@ class WalkTask(PhaseTask):
     _window: float | None = None  # the receding window of the solve under way, when it is the retry's
 
     def gait(self, params: dict[str, float]) -> tuple[GaitPlan, dict[str, Foothold]]:
-        cfg = self.config
-        pm = self.robot.pin_model
-        data = pm.createData()
-        q0 = self.robot.stand_q_pin
-        pin.framesForwardKinematics(pm, data, q0)
-        feet = {}
-        for name in FEET:
-            placement = data.oMf[self.builder.frame_id(name)]
-            feet[name] = Foothold(name, placement.translation.copy(), 0.0)
-        com0 = pin.centerOfMass(pm, data, q0)
-        spec = GaitSpec(
-            speed=params["speed"],
-            lateral_speed=params["lateral_speed"],
-            yaw_rate=params["yaw_rate"],
-            clearance=params["clearance"],
-            step_duration=params["step_duration"],
-            double_support=params["double_support"],
-            stand_start=cfg.stand_start,
-            duration=cfg.duration,
-            stand_end_min=cfg.stand_end,
-            ramp=cfg.ramp,
-            steps=cfg.steps,
-        )
-        return plan_gait(spec, feet, com0[:2].copy()), feet
+        return walk_gait(self.robot, self.config, params)
 
     def plan(self, params: dict[str, float]) -> Plan:
         cfg, w = self.config, self.config.weights
