@@ -12,7 +12,7 @@ def _unit(unit: str) -> str:
 def set_help() -> str:
     from opt2skill.tasks import available_tasks, task_info
 
-    params_of = {name: task_info(name).params for name in available_tasks()}
+    params_of = {name: task_info(name).params for name in available_tasks() if task_info(name).params}
     tasks = [f"{task}: " + ", ".join(
         f"{p.name} in [{p.allowed[0]:g}, {p.allowed[1]:g}]{_unit(p.unit)} (default {p.default_range[0]:g}:"
         f"{p.default_range[1]:g})" for p in params) for task, params in params_of.items()]

@@ -158,6 +158,16 @@ def foot_slip(robot: Robot, traj: Trajectory) -> float:
     return slip
 
 
+def foot_penetration(robot: Robot, traj: Trajectory) -> float:
+    """Deepest point (m) of a sole's centre or corners below the ground of the record's scene."""
+    depth = 0.0
+    for _, foot in foot_contacts(robot, traj):
+        pos, _ = site_poses(robot, traj.qpos, [foot.sole_site, *foot.corner_sites])
+        below = traj.scene.ground_height(pos[..., :2]) - pos[..., 2]
+        depth = max(depth, float(np.max(below, initial=0.0)))
+    return depth
+
+
 def derived_fields_error(robot: Robot, traj: Trajectory) -> float:
     """Largest difference between the stored derived fields and those recomputed from the state."""
     ref = build_trajectory(

@@ -17,6 +17,7 @@ class Figure:
 
 
 # name -> unit, default limit, meaning. Order is the order of tables.
+# A kinematic record (`has_dynamics=False`: IK or retargeted motion) gets only `KINEMATIC` ones.
 FIGURES: dict[str, Figure] = {
     "dynamic_gap": Figure("", 1e-6, "largest gap between shooting nodes after the solve (solver statistics)"),
     "id_residual_knots_max": Figure("N, N m", 1e-3, "inverse-dynamics residual on the solver grid, largest"),
@@ -31,6 +32,7 @@ FIGURES: dict[str, Figure] = {
     "joint_limit_violation": Figure("rad", 0.02, "largest joint position beyond its range"),
     "velocity_violation": Figure("rad/s", 0.5, "largest joint speed beyond the velocity limit"),
     "foot_slip": Figure("mm", 5.0, "largest sole displacement during a stance phase"),
+    "foot_penetration": Figure("mm", 2.0, "deepest sole point (centre or corner) below the ground"),
     "derived_fields_error": Figure("m, m/s", 1e-6, "stored kinematic fields vs recomputed from qpos, qvel"),
     "replay_fallen_windows": Figure("fraction", 0.0, "share of replay windows (restarted from the reference) that fall"),
     "replay_joint_rms": Figure("rad", None, "joint error RMS in the replay windows, largest window"),
@@ -42,3 +44,7 @@ FIGURES: dict[str, Figure] = {
     "replay_feedback_base_error": Figure("m", None, "base position error of the feedback replay, largest"),
     "replay_feedback_foot_error": Figure("cm", None, "sole position error of the feedback replay, largest"),
 }
+
+# The figures a kinematic record (no torques, no contact forces) is judged on; the others are
+# skipped and the validation says so (`opt2skill.data.validate`).
+KINEMATIC = ("joint_limit_violation", "velocity_violation", "foot_slip", "foot_penetration", "derived_fields_error")

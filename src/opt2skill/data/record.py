@@ -56,6 +56,11 @@ class Trajectory:
     # Optional solver-grid data (knot times, states in Crocoddyl's layout, controls, feedback gains):
     # name -> array. Documented in docs/data.md by the producer that writes it.
     knots: dict[str, np.ndarray] = field(default_factory=dict)
+    # Where the motion comes from: "to" (trajectory optimization), "ik" (keypoints through inverse
+    # kinematics), "human" (retargeted motion capture). A kinematic record (`has_dynamics=False`)
+    # stores zeros as `joint_torque` and `contact_wrench`: it has no torques or contact forces.
+    source: str = "to"
+    has_dynamics: bool = True
 
     @property
     def num_frames(self) -> int:
@@ -83,6 +88,8 @@ def build_trajectory(
     provenance: dict[str, Any] | None = None,
     knots: dict[str, np.ndarray] | None = None,
     scene: Scene | None = None,
+    source: str = "to",
+    has_dynamics: bool = True,
 ) -> Trajectory:
     """A record from 200 Hz state, torques and wrenches; kinematic fields come from the model."""
     qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
@@ -126,4 +133,6 @@ def build_trajectory(
         provenance=dict(provenance or {}),
         knots=dict(knots or {}),
         scene=scene or Scene(),
+        source=str(source),
+        has_dynamics=bool(has_dynamics),
     )

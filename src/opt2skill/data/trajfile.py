@@ -5,7 +5,9 @@ Layout of a file (docs/data.md):
     /traj_000123                 group, attributes: format, format_version, index, task, robot,
                                  seed, contact_names, ee_names, params, solver, validation,
                                  provenance, scene (JSON strings where not scalars; a file
-                                 without `scene` predates scenes and reads as the flat floor)
+                                 without `scene` predates scenes and reads as the flat floor),
+                                 source, has_dynamics (a file without them predates kinematic
+                                 records and reads as "to", True)
         time, qpos, ..., com     the frame fields, float64 (contact_active bool), gzip + shuffle,
                                  chunked along time
         knots/                   optional solver-grid arrays, dtype kept (feedback gains float32)
@@ -60,6 +62,8 @@ class TrajectoryMeta:
     provenance: dict[str, Any]
     knot_names: tuple[str, ...]
     scene: Scene
+    source: str = "to"
+    has_dynamics: bool = True
 
 
 def write_trajectory(path: str | Path, traj: Trajectory, index: int, *, drop_knots: tuple[str, ...] = ()) -> None:
@@ -78,6 +82,8 @@ def write_trajectory(path: str | Path, traj: Trajectory, index: int, *, drop_kno
             }
             attrs.update({name: dumps(getattr(traj, name)) for name in _JSON_ATTRS})
             attrs["scene"] = dumps(traj.scene.to_dict())
+            attrs["source"] = str(traj.source)
+            attrs["has_dynamics"] = bool(traj.has_dynamics)
             g.attrs.update(attrs)
             for name in FRAME_FIELDS:
                 _write_array(g, name, np.asarray(getattr(traj, name)))
@@ -178,6 +184,13 @@ def _scene(g: h5py.Group) -> Scene:
         raise DataError(f"{g.file.filename}:{g.name}: attribute 'scene' is not a valid scene: {exc}") from None
 
 
+def _origin(g: h5py.Group) -> dict[str, Any]:
+    """Source and has_dynamics; files written before kinematic records existed are TO records."""
+    source = g.attrs.get("source", "to")
+    source = source.decode() if isinstance(source, bytes) else str(source)
+    return {"source": source, "has_dynamics": bool(g.attrs.get("has_dynamics", True))}
+
+
 def _dataset(g: h5py.Group, name: str) -> h5py.Dataset:
     obj = g.get(name)
     if not isinstance(obj, h5py.Dataset):
@@ -210,6 +223,7 @@ def read_meta(path: str | Path, group: str | None = None) -> TrajectoryMeta:
             num_frames=int(_dataset(g, "time").shape[0]),
             knot_names=tuple(knots.keys()) if isinstance(knots, h5py.Group) else (),
             scene=_scene(g),
+            **_origin(g),
             **_attrs(g),
         )
 
@@ -240,4 +254,4 @@ def read_trajectory(path: str | Path, group: str | None = None, *, knots: bool =
         if knots and isinstance(kg, h5py.Group):
             knot_arrays = {name: _read(ds) for name, ds in kg.items() if isinstance(ds, h5py.Dataset)}
         a.pop("index")
-        return Trajectory(**arrays, **a, knots=knot_arrays, scene=_scene(g))
+        return Trajectory(**arrays, **a, knots=knot_arrays, scene=_scene(g), **_origin(g))

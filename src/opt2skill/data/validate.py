@@ -5,6 +5,10 @@
     {"accepted": bool, "reasons": [figures over their limit], "figures": {name: value},
      "limits": {name: limit}, "replay_windows": [[start s, fall time s or None], ...], "time": s}
 
+A kinematic record (`traj.has_dynamics` False: IK or retargeted references) is judged on the
+kinematic figures only (`figures.KINEMATIC`: limits, slip, ground penetration, derived fields); the
+result then also holds `kinematic_only: True`, `skipped` (the figures not measured) and a `note`.
+
 A figure fails when it is not finite or exceeds its limit; a limit of None reports the figure
 without judging it. Figures and default limits are listed in `FIGURES` and docs/data.md. Task
 errors (e.g. realized vs requested speed) come from the task, with the task's own limits.
@@ -20,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from opt2skill.data import checks
-from opt2skill.data.figures import FIGURES, Figure  # noqa: F401  (Figure: part of this module's API)
+from opt2skill.data.figures import FIGURES, KINEMATIC, Figure  # noqa: F401  (Figure: part of this module's API)
 from opt2skill.data.record import Trajectory
 from opt2skill.data.replay import Replayer, ReplaySettings
 from opt2skill.errors import ConfigError, DataError
@@ -118,6 +122,18 @@ def physical_figures(robot: Robot, traj: Trajectory, config: ValidationConfig) -
     return figures
 
 
+def kinematic_figures(robot: Robot, traj: Trajectory) -> dict[str, float | None]:
+    """The figures of a record without dynamics: joint and speed limits, slip, penetration, derived fields."""
+    limits = checks.limit_violations(robot, traj)
+    return {
+        "joint_limit_violation": limits["joint_limit_violation"],
+        "velocity_violation": limits["velocity_violation"],
+        "foot_slip": 1e3 * checks.foot_slip(robot, traj),
+        "foot_penetration": 1e3 * checks.foot_penetration(robot, traj),
+        "derived_fields_error": checks.derived_fields_error(robot, traj),
+    }
+
+
 def replay_figures(robot: Robot, traj: Trajectory, settings: ReplaySettings) -> tuple[dict[str, float | None], list]:
     replayer = Replayer(robot, traj, settings)
     windows = replayer.windows()
@@ -162,9 +178,14 @@ def validate(
     if traj.robot != robot.name:
         raise DataError(f"trajectory is for robot '{traj.robot}', not '{robot.name}'")
     start = time.perf_counter()
-    figures = physical_figures(robot, traj, config)
-    replay, windows = replay_figures(robot, traj, config.replay)
-    figures.update(replay)
+    skipped: list[str] = []
+    if traj.has_dynamics:
+        figures = physical_figures(robot, traj, config)
+        replay, windows = replay_figures(robot, traj, config.replay)
+        figures.update(replay)
+    else:  # no torques or contact forces to check, nothing to replay them with
+        figures, windows = kinematic_figures(robot, traj), []
+        skipped = [name for name in FIGURES if name not in KINEMATIC]
     limits = dict(config.limits)
     units = {name: FIGURES[name].unit for name in figures}
     for name, err in (task_errors or {}).items():
@@ -173,7 +194,7 @@ def validate(
         limits[key] = None if err.get("limit") is None else float(err["limit"])
         units[key] = str(err.get("unit", ""))
     reasons = judge(figures, limits)
-    return {
+    out = {
         "accepted": not reasons,
         "reasons": reasons,
         "figures": figures,
@@ -182,3 +203,9 @@ def validate(
         "replay_windows": windows,
         "time": time.perf_counter() - start,
     }
+    if skipped:
+        out["kinematic_only"] = True
+        out["skipped"] = skipped
+        out["note"] = (f"kinematic record (source '{traj.source}', has_dynamics=False): no torques or contact forces; "
+                       f"dynamics and replay checks skipped ({len(skipped)} figures)")
+    return out

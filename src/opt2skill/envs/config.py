@@ -269,6 +269,19 @@ class TrackingConfig:
             part.check()
 
 
+def check_reference_inputs(ablation: str, has_dynamics: bool, source: str = "to") -> None:
+    """Kinematic references (IK, human motion) have no torques or contact forces: only `pos` can use them.
+
+    Refused rather than switched silently: the ablation is part of a checkpoint's identity.
+    """
+    force, torque = ABLATIONS.get(ablation, (False, False))
+    if not has_dynamics and (force or torque):
+        raise ConfigError(
+            f"these references are kinematic (source '{source}', has_dynamics=False: no joint torques or contact "
+            f"forces), so ablation '{ablation}' cannot observe or reward them; train with --ablation pos"
+        )
+
+
 def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10, kp_scale: float = 1.0) -> TrackingConfig:
     """The defaults for a dataset of `task`, with an ablation, a history length and a servo stiffness applied."""
     if ablation not in ABLATIONS:

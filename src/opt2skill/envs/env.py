@@ -15,7 +15,7 @@ import numpy as np
 
 from opt2skill.data.record import FRAME_DT
 from opt2skill.envs import randomization
-from opt2skill.envs.config import TrackingConfig
+from opt2skill.envs.config import TrackingConfig, check_reference_inputs
 from opt2skill.envs.history import StridedHistory
 from opt2skill.envs.measure import Measurement, Readings, measure
 from opt2skill.envs.observations import ObservationLayout, fill, layout
@@ -60,6 +60,7 @@ class TrackingEnv:
     def __init__(self, robot: Robot, bank: ReferenceBank, config: TrackingConfig, num_envs: int, seed: int = 0,
                  sim: BatchedSim | None = None, threads: int | None = None):
         config.check()
+        check_reference_inputs(config.ablation, bank.has_dynamics, bank.source)
         if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
             raise ConfigError(f"number of environments must be a positive integer, got {num_envs}")
         self.robot, self.bank, self.config = robot, bank, config

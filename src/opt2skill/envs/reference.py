@@ -43,6 +43,10 @@ class ReferenceBank:
     task: str
     xy_range: tuple[tuple[float, float], tuple[float, float]]  # extent of the base paths, for terrain
     scenes: tuple[Scene, ...]  # (n,) the scene each trajectory was made on
+    # False for kinematic references (IK, retargeted human motion): their torques and contact forces
+    # are zeros, so only the Pos inputs may be used (`envs.config.check_reference_inputs`).
+    has_dynamics: bool = True
+    source: str = "to"
 
     @property
     def num_trajectories(self) -> int:
@@ -68,7 +72,7 @@ class ReferenceBank:
         scenes = [dataset.meta(int(p)).scene for p in table.trajectories]
         return cls._build(robot, dict(table.fields), table.start, table.length, table.trajectories,
                           identity.get("task", first.task), first.contact_names, first.ee_names, end_effectors,
-                          scenes)
+                          scenes, has_dynamics=first.has_dynamics, source=first.source)
 
     @classmethod
     def from_trajectories(cls, robot: Robot, trajectories: Sequence[Trajectory], end_effectors: Sequence[str],
@@ -83,12 +87,15 @@ class ReferenceBank:
         fields = {name: np.concatenate([getattr(t, name) for t in trajectories]).astype(dtype) for name in FIELDS}
         start = np.concatenate([[0], np.cumsum(length)[:-1]])
         return cls._build(robot, fields, start, length, np.arange(len(trajectories)), first.task,
-                          first.contact_names, first.ee_names, end_effectors, [t.scene for t in trajectories], dtype)
+                          first.contact_names, first.ee_names, end_effectors, [t.scene for t in trajectories], dtype,
+                          has_dynamics=all(t.has_dynamics for t in trajectories),
+                          source=first.source if len({t.source for t in trajectories}) == 1 else "mixed")
 
     @classmethod
     def _build(cls, robot: Robot, f: dict[str, np.ndarray], start, length, positions, task: str,
                contact_names: Sequence[str], ee_names: Sequence[str], end_effectors: Sequence[str],
-               scenes: Sequence[Scene], dtype=np.float32) -> ReferenceBank:
+               scenes: Sequence[Scene], dtype=np.float32, has_dynamics: bool = True,
+               source: str = "to") -> ReferenceBank:
         nu, nq = robot.nu, robot.nq
         if f["qpos"].shape[1] != nq or f["joint_torque"].shape[1] != nu:
             raise DataError(f"reference trajectories have {f['qpos'].shape[1]} positions and {f['joint_torque'].shape[1]} "
@@ -133,7 +140,7 @@ class ReferenceBank:
         xy = qpos[:, :2]
         xy_range = ((float(xy[:, 0].min()), float(xy[:, 0].max())), (float(xy[:, 1].min()), float(xy[:, 1].max())))
         return cls(kin, dyn, kin_cols, dyn_cols, np.asarray(start, dtype=np.int64), np.asarray(length, dtype=np.int64),
-                   np.asarray(positions), str(task), xy_range, tuple(scenes))
+                   np.asarray(positions), str(task), xy_range, tuple(scenes), bool(has_dynamics), str(source))
 
     def grounds(self) -> tuple[list[Terrain], np.ndarray]:
         """The distinct grounds the trajectories were made on (in order of first use) and the index

@@ -14,7 +14,7 @@ import torch
 
 from opt2skill.data.reader import Dataset
 from opt2skill.envs import ABLATIONS, ReferenceBank, TrackingEnv, evaluation_config, tracking_config
-from opt2skill.envs.config import TrackingConfig
+from opt2skill.envs.config import TrackingConfig, check_reference_inputs
 from opt2skill.envs.evaluation import TrackedMotion, track
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.folder_lock import folder_lock
@@ -128,6 +128,9 @@ def train(request: TrainRequest, progress: bool = True, announce: Callable[[str]
     request.check()
     check_output_dir(request.out)
     dataset, robot = open_dataset(request.dataset)
+    if len(dataset):  # kinematic references (IK, human) and force/torque inputs: refused before any work
+        first = dataset.meta(0)
+        check_reference_inputs(request.ablation, first.has_dynamics, first.source)
     config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale)
     judge = held_out_judge(request, dataset, robot, config)  # its references are read before anything is written
     ppo = PPOConfig()

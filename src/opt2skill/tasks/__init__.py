@@ -33,13 +33,14 @@ class TaskInfo:
 
     name: str
     summary: str  # one line for help texts
-    task: type[Task]  # the optimizer side: parameters -> trajectory record
+    task: type[Task] | None  # parameters -> trajectory record (None: references come from elsewhere)
     params: tuple[Param, ...]
     # Table I: the base-position reward is left out where the reference's absolute base position
     # is not the skill (walking: drift is measured separately).
     track_base_position: bool = True
     demo_ranges: dict[str, tuple[float, float]] = field(default_factory=dict)  # the demo's sampling ranges
     metrics: TaskMetrics | None = None  # task metrics beside the paper's tracking errors
+    made_by: str = "opt2skill generate"  # the command that makes its references
 
 
 @lru_cache(maxsize=1)
@@ -71,4 +72,7 @@ def task_info(name: str) -> TaskInfo:
 
 def get_task(name: str, robot: Robot, overrides: dict[str, Any] | None = None) -> Task:
     """The task `name` for `robot`, its config defaults replaced by `overrides` (checked)."""
-    return task_info(name).task(robot, overrides)
+    info = task_info(name)
+    if info.task is None:
+        raise ConfigError(f"task '{name}' is not generated: its references come from `{info.made_by}`")
+    return info.task(robot, overrides)

@@ -102,7 +102,7 @@ class StairsTask(LocomotionTask):
         cfg = self.config
         scene = self.scene(params)
         stairs = scene.terrain
-        feet = stand_footholds(self.robot, self.builder, self._start_q(scene))
+        feet = stand_footholds(self.robot, self._start_q(scene))
         edges = nosings(stairs)
         distance = edges[-1] - float(com_xy(self.robot, self.robot.stand_q_pin)[0]) + cfg.beyond
         # Steps so that the CoM path (speed with smooth ramps) covers `distance`.

@@ -61,13 +61,40 @@ class WalkConfig(TaskConfig):
     solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.03, max_iter=200, reg_init=1e-4))
 
     def check_own(self) -> None:
-        require(1.0 <= self.duration <= 60.0, f"duration = {self.duration:g} s must be in [1, 60] s")
-        require(self.steps >= 0, "steps must be >= 0 (0: fit the duration)")
-        require(self.stand_start >= 0.05 and self.stand_end >= 0.1, "stand_start >= 0.05 s and stand_end >= 0.1 s")
-        require(self.ramp >= 0, "ramp must be >= 0 s")
-        require(-0.2 <= self.base_height <= 0.05, "base_height must be in [-0.2, 0.05] m")
+        check_gait_timing(self)
         for section in (self.weights, self.receding, self.thresholds):
             section.check()
+
+
+def check_gait_timing(cfg) -> None:
+    """The checks of the gait fields (duration, steps, stand_start, stand_end, ramp, base_height),
+    shared with the IK walk's config (`tasks.walk_ik`)."""
+    require(1.0 <= cfg.duration <= 60.0, f"duration = {cfg.duration:g} s must be in [1, 60] s")
+    require(cfg.steps >= 0, "steps must be >= 0 (0: fit the duration)")
+    require(cfg.stand_start >= 0.05 and cfg.stand_end >= 0.1, "stand_start >= 0.05 s and stand_end >= 0.1 s")
+    require(cfg.ramp >= 0, "ramp must be >= 0 s")
+    require(-0.2 <= cfg.base_height <= 0.05, "base_height must be in [-0.2, 0.05] m")
+
+
+def walk_gait(robot, cfg, params: dict[str, float]) -> tuple[GaitPlan, dict[str, Foothold]]:
+    """The gait plan of walk `params` and the stand footholds: the keypoints every walk source
+    shares (the TO walk here, the IK walk in `tasks.walk_ik`), so both walks of the same
+    parameters step on the same footholds with the same timing."""
+    feet = stand_footholds(robot, robot.stand_q_pin)
+    spec = GaitSpec(
+        speed=params["speed"],
+        lateral_speed=params["lateral_speed"],
+        yaw_rate=params["yaw_rate"],
+        clearance=params["clearance"],
+        step_duration=params["step_duration"],
+        double_support=params["double_support"],
+        stand_start=cfg.stand_start,
+        duration=cfg.duration,
+        stand_end_min=cfg.stand_end,
+        ramp=cfg.ramp,
+        steps=cfg.steps,
+    )
+    return plan_gait(spec, feet, com_xy(robot, robot.stand_q_pin)), feet
 
 
 class WalkTask(LocomotionTask):
@@ -76,22 +103,7 @@ class WalkTask(LocomotionTask):
     params = PARAMS
 
     def gait(self, params: dict[str, float]) -> tuple[GaitPlan, dict[str, Foothold]]:
-        cfg = self.config
-        feet = stand_footholds(self.robot, self.builder, self.robot.stand_q_pin)
-        spec = GaitSpec(
-            speed=params["speed"],
-            lateral_speed=params["lateral_speed"],
-            yaw_rate=params["yaw_rate"],
-            clearance=params["clearance"],
-            step_duration=params["step_duration"],
-            double_support=params["double_support"],
-            stand_start=cfg.stand_start,
-            duration=cfg.duration,
-            stand_end_min=cfg.stand_end,
-            ramp=cfg.ramp,
-            steps=cfg.steps,
-        )
-        return plan_gait(spec, feet, com_xy(self.robot, self.robot.stand_q_pin)), feet
+        return walk_gait(self.robot, self.config, params)
 
     def plan(self, params: dict[str, float]) -> Plan:
         gait, feet = self.gait(params)
@@ -101,19 +113,22 @@ class WalkTask(LocomotionTask):
         return Plan(phases=phases, x0=x0, context=gait)
 
     def task_errors(self, traj: Trajectory) -> dict[str, dict[str, Any]]:
-        th = self.config.thresholds
-        gait, _ = self.gait(traj.params)
-        apex_errors = []
-        ee = list(traj.ee_names)
-        for step in gait.steps:
-            window = slice(int(round(step.liftoff / FRAME_DT)), int(round(step.touchdown / FRAME_DT)) + 1)
-            z = traj.ee_pos[window, ee.index(step.swing), 2]
-            ground = max(step.origin.position[2], step.target.position[2])
-            apex_errors.append(abs(float(z.max()) - ground - traj.params["clearance"]))
-        return {
-            "speed_error": {"value": speed_error(gait, traj), "limit": th.speed_error, "unit": "m/s"},
-            "clearance_error": {"value": float(np.median(apex_errors)), "limit": th.clearance_error, "unit": "m"},
-        }
+        return walk_errors(self.gait(traj.params)[0], self.config.thresholds, traj)
+
+
+def walk_errors(gait: GaitPlan, th: WalkThresholds, traj: Trajectory) -> dict[str, dict[str, Any]]:
+    """Realized mean velocity against the commanded one, and swing apexes against the clearance."""
+    apex_errors = []
+    ee = list(traj.ee_names)
+    for step in gait.steps:
+        window = slice(int(round(step.liftoff / FRAME_DT)), int(round(step.touchdown / FRAME_DT)) + 1)
+        z = traj.ee_pos[window, ee.index(step.swing), 2]
+        ground = max(step.origin.position[2], step.target.position[2])
+        apex_errors.append(abs(float(z.max()) - ground - traj.params["clearance"]))
+    return {
+        "speed_error": {"value": speed_error(gait, traj), "limit": th.speed_error, "unit": "m/s"},
+        "clearance_error": {"value": float(np.median(apex_errors)), "limit": th.clearance_error, "unit": "m"},
+    }
 
 
 def speed_error(gait: GaitPlan, traj: Trajectory) -> float:

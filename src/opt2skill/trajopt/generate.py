@@ -68,8 +68,11 @@ def _parse_task(request: GenerateRequest):
 
 def _overrides(request: GenerateRequest) -> dict[str, Any]:
     # Gains are always computed (free in DDP) for the feedback replay of validation; the store
-    # drops them unless --keep-gains.
-    return {"solver.keep_gains": True}
+    # drops them unless --keep-gains. Kinematic tasks (IK) have no solver gains.
+    from opt2skill.tasks import task_info
+
+    task = task_info(request.task).task
+    return {"solver.keep_gains": True} if task is None or task.has_dynamics else {}
 
 
 def generate(request: GenerateRequest, progress: bool = True) -> dict[str, Any]:

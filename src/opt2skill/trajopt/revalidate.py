@@ -63,14 +63,17 @@ def _recheck(path: str, status: str, task: str, robot: str, config: dict[str, An
     from opt2skill.data.trajfile import read_meta, read_trajectory
     from opt2skill.data.validate import validate
     from opt2skill.model import load_robot
-    from opt2skill.tasks import get_task
+    from opt2skill.tasks import get_task, task_info
 
     key = (task, robot)
     if _loaded.get("key") != key:
         loaded_robot = load_robot(robot)
-        _loaded.update(key=key, robot=loaded_robot, task=get_task(task, loaded_robot))
+        # A task whose references are not generated (retargeted clips) has no task checks.
+        made = get_task(task, loaded_robot) if task_info(task).task is not None else None
+        _loaded.update(key=key, robot=loaded_robot, task=made)
     traj = read_trajectory(path)
-    new = validate(_loaded["robot"], traj, ValidationConfig.from_dict(config), _loaded["task"].task_errors(traj))
+    errors = _loaded["task"].task_errors(traj) if _loaded["task"] is not None else {}
+    new = validate(_loaded["robot"], traj, ValidationConfig.from_dict(config), errors)
     return Recheck(read_meta(path).index, status, traj.validation, new)
 
 

@@ -1,7 +1,7 @@
 """A task is a family of motions: a parameter space and a solver that returns a trajectory record.
 
 Dataset generation (`opt2skill generate <task>`) only uses this interface, so a new task (stairs,
-box pickup, ...) is a new `Task` subclass registered in `trajopt.registry`, not a new pipeline.
+box pickup, ...) is a new `Task` subclass in its own file under `opt2skill.tasks`, not a new pipeline.
 """
 
 from __future__ import annotations
@@ -16,6 +16,10 @@ from opt2skill.trajopt.params import ParamSpace
 
 class Task(ABC):
     name: ClassVar[str]
+    # What the records are made by: "to" (optimization, with torques and contact forces) or a
+    # kinematic source ("ik", "human") whose records have `has_dynamics=False` (docs/baselines.md).
+    source: ClassVar[str] = "to"
+    has_dynamics: ClassVar[bool] = True
 
     def __init__(self, robot: Robot, overrides: dict[str, Any] | None = None):
         """`overrides`: values that replace the task config's defaults (unknown keys are errors)."""

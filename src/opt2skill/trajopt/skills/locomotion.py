@@ -46,14 +46,12 @@ class LocomotionWeights:
         require(all(v >= 0 for v in vars(self).values()), "locomotion weights must be >= 0")
 
 
-def stand_footholds(robot: Robot, builder, q: np.ndarray) -> dict[str, Foothold]:
-    """The robot's feet where configuration q puts them (left first), heading 0."""
+def stand_footholds(robot: Robot, q: np.ndarray) -> dict[str, Foothold]:
+    """The robot's feet (sole centres) where configuration q puts them (left first), heading 0."""
     data = robot.pin_model.createData()
     pin.framesForwardKinematics(robot.pin_model, data, q)
-    return {
-        foot.name: Foothold(foot.name, data.oMf[builder.frame_id(foot.name)].translation.copy(), 0.0)
-        for foot in robot.config.feet
-    }
+    sole = {foot.name: robot.pin_frame_id(robot.config.end_effectors[foot.name]) for foot in robot.config.feet}
+    return {name: Foothold(name, data.oMf[fid].translation.copy(), 0.0) for name, fid in sole.items()}
 
 
 def com_xy(robot: Robot, q: np.ndarray) -> np.ndarray:
