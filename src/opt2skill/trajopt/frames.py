@@ -104,8 +104,11 @@ def complete(coarse: Problem, cones: ContactCones | None, policy_for_node: Polic
             _anchor_touchdowns(coarse, k, x)
             continue
         differential = model.differential  # the contacts are shared: anchoring applies here too
+        # The node's own state: a phase carrying a payload has its own model (`ProblemBuilder._carrying`).
+        own = differential.state
         dynamics = crocoddyl.DifferentialActionModelContactFwdDynamics(
-            state, differential.actuation, differential.contacts, no_costs, 0.0, True
+            own, differential.actuation, differential.contacts,
+            no_costs if own is state else crocoddyl.CostModelSum(own, coarse.nu), 0.0, True
         )
         fine = crocoddyl.IntegratedActionModelEuler(dynamics, FRAME_DT)
         fine_data = fine.createData()
@@ -149,6 +152,15 @@ def rollout(coarse: Problem, solution: Solution, cones: ContactCones | None = No
     return complete(coarse, cones, policy_for_node)
 
 
+def _point_normal_frame(problem: Problem, name: str) -> np.ndarray:
+    """The rotation whose z axis is the (first) planned normal of point contact `name`."""
+    for phase in problem.phases:
+        for c in phase.contacts:
+            if c.name == name:
+                return np.asarray(c.placement.rotation)
+    return np.eye(3)
+
+
 class ContactCones:
     """Friction cones and centre-of-pressure bounds of the contacts, as a rollout enforces them.
 
@@ -165,8 +177,8 @@ class ContactCones:
             if problem.flat[name]:
                 length, width = robot_feet[name]
                 cone = crocoddyl.WrenchCone(np.eye(3), mu, np.array([length, width]), 4, True, 0.0)
-            else:
-                cone = crocoddyl.FrictionCone(np.eye(3), mu, 4, True, 0.0)
+            else:  # a point contact's force is in world axes: the cone's normal is its placement's z
+                cone = crocoddyl.FrictionCone(_point_normal_frame(problem, name), mu, 4, True, 0.0)
             self.rows[name] = (np.array(cone.A), np.array(cone.lb), np.array(cone.ub))
 
     def _stack(self, contacts):

@@ -81,6 +81,7 @@ class PhaseTask(Task):
             frames = frames_mod.rollout(problem, solution, self._cones(problem))
         else:
             frames = frames_mod.interpolate(problem, solution)
+        frames = self.complete_frames(plan, problem, frames, solver_knots)
         if not (np.all(np.isfinite(frames.q)) and np.all(np.isfinite(frames.v)) and np.all(np.isfinite(frames.wrench))):
             raise SolverError(
                 f"task '{self.name}': the 200 Hz frames diverged ({solution.stop_reason}, cost {solution.cost:.3g})"
@@ -113,6 +114,11 @@ class PhaseTask(Task):
         )
         traj.solver["total_time"] = time.perf_counter() - start
         return traj
+
+    def complete_frames(self, plan: Plan, problem: Problem, frames: frames_mod.Frames, knots: dict) -> frames_mod.Frames:
+        """What the record needs beyond the optimizer's own frames and knots (e.g. a carried object's
+        forces on the hands, filled in place); default: the frames as they are."""
+        return frames
 
     def _with_standard_costs(self, plan: Plan) -> list[Phase]:
         """The plan's phases, each node's task costs followed by the posture and torque terms."""

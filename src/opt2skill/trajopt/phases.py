@@ -63,6 +63,9 @@ class Phase:
     contacts: tuple[Contact, ...]
     costs: CostFunction  # (knot, terms) -> list of (name, cost model, weight)
     label: str = ""
+    # Point masses the robot carries in this phase: (end effector, kg), e.g. half a held box at each
+    # hand. The phase's dynamics is the robot's with these masses at those points (docs/trajopt.md).
+    payload: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,7 @@ class ProblemBuilder:
         self.actuation = crocoddyl.ActuationModelFloatingBase(self.state)
         self.nu = self.actuation.nu
         self._limit_bounds = self._joint_limit_bounds()
+        self._payload_states: dict = {}
 
     def frame_id(self, contact_name: str) -> int:
         return self.robot.pin_frame_id(self.robot.config.end_effectors[contact_name])
@@ -135,7 +139,9 @@ class ProblemBuilder:
                 nodes.append(Node(knot.time, node_dt, "running", index, tuple(sorted(names))))
                 offset += node_dt
             t = round((t + phase.duration) / FRAME_DT) * FRAME_DT
-            previous = names
+            # A hand that held a payload already touches what it puts down: no impact when it becomes
+            # a contact again (the record keeps it active throughout).
+            previous = names | {name for name, _ in phase.payload}
         last = phases[-1]
         knot = Knot(t, len(phases) - 1, last.duration, "terminal")
         terminal = self._running_model(last, knot, 0.0, with_costs)
@@ -190,16 +196,17 @@ class ProblemBuilder:
     # -- nodes ---------------------------------------------------------------------------------
 
     def _running_model(self, phase: Phase, knot: Knot, dt: float, with_costs: bool, integrator: str = "euler"):
-        contacts = crocoddyl.ContactModelMultiple(self.state, self.nu)
+        state, actuation = self._carrying(phase.payload)
+        contacts = crocoddyl.ContactModelMultiple(state, self.nu)
         for c in phase.contacts:
-            contacts.addContact(c.name, self._contact_model(c))
-        costs = crocoddyl.CostModelSum(self.state, self.nu)
+            contacts.addContact(c.name, self._contact_model(c, state))
+        costs = crocoddyl.CostModelSum(state, self.nu)
         if with_costs:
-            terms = Terms(self.state, self.nu, self.robot)
+            terms = Terms(state, self.nu, self.robot)
             for name, cost, weight in phase.costs(knot, terms):
                 costs.addCost(name, cost, weight)
             self._add_limits(costs, phase.contacts, terms, knot.kind if dt > 0 else "terminal")
-        dam = crocoddyl.DifferentialActionModelContactFwdDynamics(self.state, self.actuation, contacts, costs, 0.0, True)
+        dam = crocoddyl.DifferentialActionModelContactFwdDynamics(state, actuation, contacts, costs, 0.0, True)
         if with_costs:  # the optimizer keeps a torque margin for feedback; rollouts use the full range
             limit = self.robot.config.torque_limit * self.feasibility.torque_limit_scale
             dam.u_lb, dam.u_ub = -limit, limit
@@ -212,32 +219,52 @@ class ProblemBuilder:
         return crocoddyl.IntegratedActionModelRK(dam, rk, dt)
 
     def _impulse_model(self, starting: list[Contact], phase: Phase, knot: Knot, with_costs: bool):
-        impulses = crocoddyl.ImpulseModelMultiple(self.state)
+        state, _ = self._carrying(phase.payload)
+        impulses = crocoddyl.ImpulseModelMultiple(state)
         for c in starting:
             fid = self.frame_id(c.name)
             if c.flat:
-                impulse = crocoddyl.ImpulseModel6D(self.state, fid, pin.LOCAL)
+                impulse = crocoddyl.ImpulseModel6D(state, fid, pin.LOCAL)
             else:
-                impulse = crocoddyl.ImpulseModel3D(self.state, fid, pin.LOCAL_WORLD_ALIGNED)
+                impulse = crocoddyl.ImpulseModel3D(state, fid, pin.LOCAL_WORLD_ALIGNED)
             impulses.addImpulse(c.name, impulse)
-        costs = crocoddyl.CostModelSum(self.state, 0)
+        costs = crocoddyl.CostModelSum(state, 0)
         if with_costs:
-            terms = Terms(self.state, 0, self.robot)
+            terms = Terms(state, 0, self.robot)
             for name, cost, weight in phase.costs(knot, terms):
                 costs.addCost(name, cost, weight)
-        model = crocoddyl.ActionModelImpulseFwdDynamics(self.state, impulses, costs)
+        model = crocoddyl.ActionModelImpulseFwdDynamics(state, impulses, costs)
         model.JMinvJt_damping = 1e-12
         model.r_coeff = 0.0  # fully plastic touchdown: the contact point stops
         return model
 
-    def _contact_model(self, c: Contact):
+    def _contact_model(self, c: Contact, state):
         fid = self.frame_id(c.name)
         gains = np.array([self.contact.baumgarte_kp, self.contact.baumgarte_kd])
         if c.flat:
-            return crocoddyl.ContactModel6D(self.state, fid, c.placement, pin.LOCAL, self.nu, gains)
-        return crocoddyl.ContactModel3D(
-            self.state, fid, c.placement.translation, pin.LOCAL_WORLD_ALIGNED, self.nu, gains
-        )
+            return crocoddyl.ContactModel6D(state, fid, c.placement, pin.LOCAL, self.nu, gains)
+        return crocoddyl.ContactModel3D(state, fid, c.placement.translation, pin.LOCAL_WORLD_ALIGNED, self.nu, gains)
+
+    def _carrying(self, payload: tuple[tuple[str, float], ...]):
+        """State and actuation of the robot carrying point masses at end effectors (cached).
+
+        A point mass m at a point p of a body adds m J_p^T (a_p - g) to the equations of motion, so
+        the robot-only dynamics of the same motion balances with the force m (g - a_p) at p: that
+        is the held object's force on the robot the record stores (no rotational inertia, exact)."""
+        if not payload:
+            return self.state, self.actuation
+        key = tuple(sorted(payload))
+        if key not in self._payload_states:
+            model = pin.Model(self.robot.pin_model)
+            for name, mass in key:
+                frame = model.frames[self.frame_id(name)]
+                lever = frame.placement.translation
+                model.inertias[frame.parentJoint] = model.inertias[frame.parentJoint] + pin.Inertia(
+                    float(mass), lever, np.zeros((3, 3)))
+            state = crocoddyl.StateMultibody(model)
+            self._payload_states[key] = (model, state, crocoddyl.ActuationModelFloatingBase(state))
+        _, state, actuation = self._payload_states[key]
+        return state, actuation
 
     # -- limits shared by every task --------------------------------------------------------------
 

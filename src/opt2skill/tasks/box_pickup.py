@@ -1,0 +1,348 @@
+"""Box pickup, shelf to shelf (paper Sec. IV-E): take a box from one board of a shelf, put it on another.
+
+The scene: a shelf in front of the robot with two boards (`low`, `high`), the box on one of them,
+its centre `reach` m ahead of the stand pose's base. The feet stay on their stand footholds. The
+paper's five phases, as the plan's phases:
+
+1. squat and reach: the hands go to pre-grasp points beside the box's side faces;
+2. close and squeeze: the hands move onto the faces, then press on them as point contacts whose
+   friction cones open along the faces' outward normals (the shelf still carries the box);
+3. lift, retract slightly and stand: the box is a payload, half its mass at each hand;
+4. carry it out past the board's front edge, to the other board's height, in over that board,
+   lower it, squeeze there (point contacts again) and release;
+5. return to the stand posture.
+
+While the box is held, the record's hand forces are the box's dynamics plus a squeeze that lets
+friction hold it (`skills.manipulation.held_object_forces`), so feet and hands together balance the
+robot's and the box's momentum. In MuJoCo the box is a free body held by friction alone.
+
+Checks: the hands' friction cones at the box, and the optimizer's feedback expert in MuJoCo with the
+real shelf and box must put the box within 3 cm of its target (`placement_error`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+
+from opt2skill.data.record import Trajectory
+from opt2skill.errors import ConfigError
+from opt2skill.scene.description import Scene
+from opt2skill.scene.props import Box, Shelf
+from opt2skill.tasks import TaskInfo
+from opt2skill.trajopt.config import require
+from opt2skill.trajopt.frames import Frames
+from opt2skill.trajopt.params import Param
+from opt2skill.trajopt.phase_task import PhaseTask, Plan
+from opt2skill.trajopt.phases import Knot, Phase, Problem
+from opt2skill.trajopt.receding import solve_receding
+from opt2skill.trajopt.settings import ContactSettings, SolverSettings
+from opt2skill.trajopt.skills.gait import smoothstep
+from opt2skill.trajopt.skills.locomotion import foot_contact, stand_footholds
+from opt2skill.trajopt.skills.manipulation import HandPath, HoldGuess, grasp_contacts, held_object_forces
+from opt2skill.trajopt.skills.stride_guess import RecedingSettings
+from opt2skill.trajopt.solver import Solution
+from opt2skill.trajopt.task_config import TaskConfig
+
+HANDS = ("left_hand", "right_hand")
+
+PARAMS = (
+    Param("low", allowed=(0.3, 0.95), default_range=(0.84, 0.90), unit="m", help="lower board's top"),
+    Param("high", allowed=(0.8, 1.45), default_range=(1.20, 1.30), unit="m", help="upper board's top"),
+    Param("upward", allowed=(0.0, 1.0), default_range=(0.0, 1.0), unit="", help="from 0.5: low to high; below: high to low"),
+    Param("reach", allowed=(0.35, 0.6), default_range=(0.49, 0.53), unit="m", help="box centre ahead of the base"),
+    Param("box_width", allowed=(0.2, 0.4), default_range=(0.27, 0.32), unit="m", help="box extent between the hands"),
+    Param("box_mass", allowed=(0.0, 5.0), default_range=(0.3, 1.0), unit="kg", help="box mass"),
+)
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Seconds of each phase (multiples of the 5-ms frame)."""
+
+    stand: float = 0.3
+    reach: float = 1.0
+    reach_in: float = 0.6
+    close: float = 0.5
+    squeeze: float = 0.4
+    lift: float = 0.5
+    out: float = 0.8
+    carry: float = 1.4
+    into: float = 0.8
+    lower: float = 0.5
+    release: float = 0.4
+    open: float = 0.5
+    withdraw: float = 0.6
+    back: float = 1.2
+    rest: float = 0.4
+
+    def check(self) -> None:
+        require(all(0.005 <= v <= 5.0 for v in vars(self).values()), "timing: every phase must last 0.005 to 5 s")
+
+
+@dataclass(frozen=True)
+class BoxWeights:
+    hands: float = 1e4  # hand positions along their paths
+    held: float = 1e5  # hand positions while the box is held (keeps the box rigid between them)
+    touch: float = 1e6  # hand positions where they touch the box
+    squeeze: float = 10.0  # hand forces towards a pure squeeze while the box rests on a board
+    com: float = 1e3  # CoM over the middle of the feet
+    base_orientation: float = 3e3  # upright: a leaning torso meets the box or the board above
+
+    def check(self) -> None:
+        require(all(v >= 0 for v in vars(self).values()), "box weights must be >= 0")
+
+
+@dataclass(frozen=True)
+class BoxThresholds:
+    hand_friction: float = 1.0  # N, largest hand force outside the hand-box friction cone
+    placement_error: float = 0.03  # m, the box's final centre from its target, expert in MuJoCo
+
+    def check(self) -> None:
+        require(self.hand_friction > 0 and self.placement_error > 0, "box thresholds must be > 0")
+
+
+@dataclass(frozen=True)
+class BoxPickupConfig(TaskConfig):
+    box_depth: float = 0.16  # m, along x
+    box_height: float = 0.2  # m
+    shelf_depth: float = 0.4  # m
+    pregrasp: float = 0.08  # m beside a face before closing on it
+    retract: float = 0.05  # m the box is pulled back (towards the robot) when lifted
+    lift: float = 0.04  # m the box is lifted off a board
+    board_gap: float = 0.1  # m of free height above the box on the lower board, at least
+    edge_clearance: float = 0.04  # m between the box and a board's front edge when it passes the board
+    squeeze: float = 20.0  # N each hand presses on the box while it rests on a board
+    touch: float = 20.0  # N each hand presses where the box stops resting on a board, or starts (a fade
+    # towards less before a lift made the expert's grasp in MuJoCo fail: docs/trajopt.md)
+    timing: Timing = field(default_factory=Timing)
+    weights: BoxWeights = field(default_factory=BoxWeights)
+    thresholds: BoxThresholds = field(default_factory=BoxThresholds)
+    receding: RecedingSettings = field(default_factory=lambda: RecedingSettings(retry_window=0.0))
+    contact: ContactSettings = field(default_factory=lambda: ContactSettings(min_normal_force=10.0))
+    solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.02, max_iter=200, reg_init=1e-4))
+
+    def check_own(self) -> None:
+        require(0.1 <= self.box_depth <= 0.4 and 0.1 <= self.box_height <= 0.4, "box_depth and box_height must be in [0.1, 0.4] m")
+        require(0.02 <= self.pregrasp <= 0.2, "pregrasp must be in [0.02, 0.2] m")
+        require(0.0 <= self.touch <= self.squeeze <= 200.0, "squeeze and touch must satisfy 0 <= touch <= squeeze <= 200 N")
+        require(0.0 <= self.retract <= 0.15 and 0.01 <= self.lift <= 0.1, "retract in [0, 0.15] m, lift in [0.01, 0.1] m")
+        for section in (self.timing, self.weights, self.thresholds, self.receding):
+            section.check()
+
+
+class BoxPickupTask(PhaseTask):
+    name = "box_pickup"
+    config_class = BoxPickupConfig
+    params = PARAMS
+
+    # -- the scene -------------------------------------------------------------------------------
+
+    def boards(self, params: dict[str, float]) -> tuple[float, float]:
+        """(source, target) board heights; a ConfigError when the box would not fit under the upper."""
+        low, high = params["low"], params["high"]
+        if high - low < self.config.box_height + self.config.board_gap:
+            raise ConfigError(f"boards low = {low:g} m and high = {high:g} m are too close: the box "
+                              f"({self.config.box_height:g} m) and the hands need "
+                              f"{self.config.box_height + self.config.board_gap:g} m between them")
+        return (low, high) if params["upward"] >= 0.5 else (high, low)
+
+    def scene(self, params: dict[str, float]) -> Scene:
+        cfg = self.config
+        source, _ = self.boards(params)
+        x = self.robot.stand_q_pin[0] + params["reach"]
+        shelf_x = self.front_edge(params) + cfg.shelf_depth / 2
+        shelf = Shelf(pos=(shelf_x, 0.0), width=max(0.8, params["box_width"] + 0.5), depth=cfg.shelf_depth,
+                      boards=tuple(sorted((params["low"], params["high"]))))
+        box = Box(size=(cfg.box_depth, params["box_width"], cfg.box_height), mass=max(params["box_mass"], 0.01),
+                  pos=(x, 0.0, source + cfg.box_height / 2))
+        return Scene(props=(shelf, box))
+
+    def front_edge(self, params: dict[str, float]) -> float:
+        """x of the shelf's front edge: the box stands 2 cm behind it."""
+        return self.robot.stand_q_pin[0] + params["reach"] - self.config.box_depth / 2 - 0.02
+
+    def box_centres(self, params: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        source, target = self.boards(params)
+        x = self.robot.stand_q_pin[0] + params["reach"]
+        h = self.config.box_height / 2
+        return np.array([x, 0.0, source + h]), np.array([x, 0.0, target + h])
+
+    def hand_offsets(self, params: dict[str, float]) -> dict[str, np.ndarray]:
+        """From the box centre to each hand site at a grasp: half the width plus the hand's radius."""
+        half = params["box_width"] / 2 + _hand_radius(self.robot)
+        return {"left_hand": np.array([0.0, half, 0.0]), "right_hand": np.array([0.0, -half, 0.0])}
+
+    # -- the plan --------------------------------------------------------------------------------
+
+    def plan(self, params: dict[str, float]) -> Plan:
+        cfg, w, T = self.config, self.config.weights, self.config.timing
+        q0 = self.robot.stand_q_pin
+        x0 = np.concatenate([q0, np.zeros(self.robot.nv)])
+        feet = tuple(foot_contact(f) for f in stand_footholds(self.robot, q0).values())
+        centre = np.mean([c.placement.translation for c in feet], axis=0)
+        source, target = self.box_centres(params)
+        offset = self.hand_offsets(params)
+        normals = {h: offset[h] / np.linalg.norm(offset[h]) for h in HANDS}
+        home = _hand_positions(self.robot, q0)
+        grasp = {h: source + offset[h] for h in HANDS}
+        place = {h: target + offset[h] for h in HANDS}
+        wide = {h: grasp[h] + cfg.pregrasp * normals[h] for h in HANDS}
+        wide_at_target = {h: place[h] + cfg.pregrasp * normals[h] for h in HANDS}
+        up = np.array([-cfg.retract, 0.0, cfg.lift])
+        lifted = {h: grasp[h] + up for h in HANDS}
+        # Around the boards: out past the shelf's front edge, to the other board's height, in above it.
+        clear = self.front_edge(params) - cfg.box_depth / 2 - cfg.edge_clearance - source[0]
+        out_here = {h: grasp[h] + np.array([clear, 0.0, cfg.lift]) for h in HANDS}
+        out_there = {h: place[h] + np.array([clear, 0.0, cfg.lift]) for h in HANDS}
+        above = {h: place[h] + np.array([0.0, 0.0, cfg.lift]) for h in HANDS}
+        clear_of_board = {h: wide_at_target[h] + np.array([clear, 0.0, 0.0]) for h in HANDS}
+        approach = {h: wide[h] + np.array([clear, 0.0, 0.0]) for h in HANDS}  # in front of the board edge
+        held = tuple((h, params["box_mass"] / 2) for h in HANDS) if params["box_mass"] > 0 else ()
+
+        def balance(knot: Knot, terms) -> list:
+            return [("com", terms.com([centre[0], centre[1], 0.0], (1, 1, 0)), w.com),
+                    ("base_orientation", terms.rotation(self.robot.config.imu_site, np.eye(3)), w.base_orientation)]
+
+        def hands_along(path: HandPath, weight: float):
+            def costs(knot: Knot, terms) -> list:
+                out = balance(knot, terms)
+                if knot.kind == "impulse":
+                    return []
+                for h, p in path.at(knot.time).items():
+                    out.append((f"{h}_path", terms.translation(self.robot.config.end_effectors[h], p), weight))
+                return out
+
+            return costs
+
+        def touching(points: dict[str, np.ndarray], rising: bool):
+            start = t
+
+            def costs(knot: Knot, terms) -> list:
+                if knot.kind == "running":
+                    # A pure squeeze: opposite forces along the faces' normals, so the hands add no net
+                    # force to the box and it rests on its board (the optimizer sees no box). It fades
+                    # towards a touch before a lift and grows from one after a placement: while the
+                    # box is a payload the optimizer's arms push on nothing, so they must not push then.
+                    s = smoothstep((knot.time - start) / max(T.squeeze, T.release))
+                    f = cfg.touch + (cfg.squeeze - cfg.touch) * (1.0 - s if rising else s)
+                    return balance(knot, terms) + [
+                        (f"{h}_squeeze", terms.contact_force(self.builder.frame_id(h), f * normals[h], (1, 1, 1)),
+                         w.squeeze) for h in points]
+                if knot.kind != "impulse":
+                    return balance(knot, terms)
+                # the hands touch the faces where the grasp is planned (as walking's touchdown cost)
+                return [(f"{h}_touch", terms.translation(self.robot.config.end_effectors[h], p), w.touch)
+                        for h, p in points.items()]
+
+            return costs
+
+        phases: list[Phase] = []
+        t = 0.0
+
+        def add(duration: float, label: str, start, end, *, weight=w.hands, grasping=None, payload=()):
+            nonlocal t
+            contacts = feet + (grasp_contacts(grasping, normals) if grasping else ())
+            path = HandPath(start, end, t, duration)
+            costs = touching(grasping, label == "squeeze") if grasping else hands_along(path, weight)
+            phases.append(Phase(duration, contacts, costs, label, payload=payload))
+            t += duration
+
+        add(T.stand, "stand", home, home)
+        add(T.reach, "squat and reach", home, approach)
+        add(T.reach_in, "reach in", approach, wide)
+        add(T.close, "close", wide, grasp, weight=w.held)
+        add(T.squeeze, "squeeze", grasp, grasp, grasping=grasp)
+        add(T.lift, "lift", grasp, lifted, weight=w.held, payload=held)
+        add(T.out, "out of the board", lifted, out_here, weight=w.held, payload=held)
+        add(T.carry, "to the other board", out_here, out_there, weight=w.held, payload=held)
+        add(T.into, "over the board", out_there, above, weight=w.held, payload=held)
+        add(T.lower, "lower", above, place, weight=w.held, payload=held)
+        add(T.release, "release", place, place, grasping=place)
+        add(T.open, "open", place, wide_at_target)
+        add(T.withdraw, "withdraw", wide_at_target, clear_of_board)
+        add(T.back, "return", clear_of_board, home)
+        add(T.rest, "stand", home, home)
+        return Plan(phases=phases, x0=x0, scene=self.scene(params), context=params)
+
+    def optimize(self, problem: Problem, plan: Plan) -> Solution:
+        rc = self.config.receding
+        if not rc.enabled:
+            return super().optimize(problem, plan)
+        return solve_receding(problem, self.config.solver, window=rc.window, commit=rc.commit, max_iter=rc.max_iter,
+                              first_max_iter=rc.first_max_iter, extend=HoldGuess(problem))
+
+    def complete_frames(self, plan: Plan, problem: Problem, frames: Frames, knots: dict) -> Frames:
+        params = plan.context
+        if params["box_mass"] > 0:
+            mu = self.robot.config.friction_coefficient * self.config.contact.friction_scale
+            held_object_forces(self.robot, problem, frames, knots, HANDS, params["box_mass"], mu)
+        return frames
+
+    # -- checks ----------------------------------------------------------------------------------
+
+    def task_errors(self, traj: Trajectory) -> dict[str, dict[str, Any]]:
+        th = self.config.thresholds
+        _, target = self.box_centres(traj.params)
+        final = expert_box_position(self.robot, traj, "box")
+        mu = self.robot.config.friction_coefficient
+        return {
+            "hand_friction": {"value": hand_friction_violation(traj, mu), "limit": th.hand_friction, "unit": "N"},
+            "placement_error": {"value": float(np.linalg.norm(final - target)), "limit": th.placement_error, "unit": "m"},
+        }
+
+
+def hand_friction_violation(traj: Trajectory, mu: float) -> float:
+    """Largest max(0, |f_t| - mu f_n, -f_n) (N) of the hands' forces, the normal of each hand being
+    the line between the hands (outward), whenever a hand touches the box."""
+    names = list(traj.contact_names)
+    ee = list(traj.ee_names)
+    left, right = (names.index(h) for h in HANDS)
+    axis = traj.ee_pos[:, ee.index("left_hand")] - traj.ee_pos[:, ee.index("right_hand")]
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    worst = 0.0
+    for c, n in ((left, axis), (right, -axis)):
+        on = traj.contact_active[:, c]
+        f = traj.contact_wrench[on, c, :3]
+        fn = np.einsum("ij,ij->i", f, n[on])
+        ft = np.linalg.norm(f - fn[:, None] * n[on], axis=1)
+        worst = max(worst, float(np.max(np.maximum(ft - mu * fn, -fn), initial=0.0)))
+    return worst
+
+
+def expert_box_position(robot, traj: Trajectory, box: str) -> np.ndarray:
+    """Where the box ends when the optimizer's feedback expert plays the record in MuJoCo with the
+    real props (the shelf, the box as a free body held by friction); a record without the solver's
+    gains is played open loop (reference torques and PD) instead."""
+    from opt2skill.data.replay import Replayer
+
+    replayer = Replayer(robot, traj)
+    if replayer.feedback() is None:
+        replayer.full()
+    body = mujoco.mj_name2id(replayer.model, mujoco.mjtObj.mjOBJ_BODY, box)
+    return replayer.data.xpos[body].copy()
+
+
+def _hand_radius(robot) -> float:
+    """Radius of the hand's collision sphere (the geom named like the hand's site), 0 without one."""
+    gid = mujoco.mj_name2id(robot.mj_model, mujoco.mjtObj.mjOBJ_GEOM, robot.config.end_effectors["left_hand"])
+    return float(robot.mj_model.geom_size[gid, 0]) if gid >= 0 else 0.0
+
+
+def _hand_positions(robot, q: np.ndarray) -> dict[str, np.ndarray]:
+    data = robot.pin_model.createData()
+    pin.framesForwardKinematics(robot.pin_model, data, q)
+    return {h: data.oMf[robot.pin_frame_id(robot.config.end_effectors[h])].translation.copy() for h in HANDS}
+
+
+INFO = TaskInfo(
+    name="box_pickup",
+    summary="pick a box up from one shelf board and place it on another (paper Sec. IV-E)",
+    task=BoxPickupTask,
+    params=PARAMS,
+    demo_ranges={"box_mass": (0.3, 0.6), "upward": (0.6, 1.0)},
+)
