@@ -11,15 +11,11 @@ import sys
 import mujoco
 import numpy as np
 import pytest
-from eval_support import CLI, shared_run
+from eval_support import CLI, player_matches_environment, shared_run
 
 from opt2skill.data.reader import Dataset
 from opt2skill.deploy.export import export_policy
-from opt2skill.deploy.observations import ReferenceFrames
 from opt2skill.deploy.player import Player, PlayerConfig
-from opt2skill.envs import ReferenceBank, TrackingEnv, evaluation_config
-from opt2skill.envs.config import TerminationConfig
-from opt2skill.eval.evaluate import load_run_policy
 
 
 @pytest.fixture(scope="module")
@@ -35,31 +31,7 @@ def test_player_observations_equal_the_training_environments_for_the_same_states
     histories and builds the observation from the metadata. Layouts, frames, histories, reference
     frames and reset fills must all agree: the vectors are equal to float32 rounding."""
     run, dataset, path = exported
-    source = load_run_policy(run)
-    reference = Dataset.open(dataset)[1]
-    config = dataclasses.replace(evaluation_config(source.spec.tracking), terminations=TerminationConfig(
-        max_height_error=0, max_orientation_error=0, max_xy_error=0, min_height=0))
-    bank = ReferenceBank.from_trajectories(source.robot, [reference], config.observations.end_effectors, dtype=np.float64)
-    player = Player(path)
-    frames = ReferenceFrames(reference, player.feet)
-    rng = np.random.default_rng(0)
-    action, worst = None, 0.0
-    with TrackingEnv(source.robot, bank, config, 1, seed=0, threads=1) as env:
-        env.reset_worlds(np.array([0]), np.array([0]), np.array([0]))
-        for t in range(reference.num_frames - 1):
-            expected, _ = env.observations()
-            state = env.state
-            player.data.qpos[:], player.data.qvel[:] = state.qpos[0], state.qvel[0]
-            mujoco.mj_forward(player.model, player.data)
-            readings = player.sense()
-            if action is None:
-                player.observation.reset(readings.joint_pos, (reference.qpos[0, 7:] - player.default_pose) / player.scale)
-            else:
-                player.observation.push(readings.joint_pos, action)
-            got = player.observation.observe(readings, frames, t)
-            worst = max(worst, float(np.abs(got - expected[0]).max() / (1 + np.abs(expected[0]).max())))
-            action = np.clip(source.policy(expected)[0] + 0.3 * rng.standard_normal(20), -10, 10)
-            assert not env.step(action[None]).episodes or t == reference.num_frames - 2
+    worst = player_matches_environment(run, path, Dataset.open(dataset)[1])
     assert worst < 1e-6, worst
 
 

@@ -29,23 +29,24 @@ def documented(group: str) -> list[tuple[str, str, str]]:
     return rows
 
 
-def size_of(formula: str, n: int, force: bool, torque: bool) -> int:
-    """'20 N' -> 20 n; '6 (F)' -> 6 with the reference force, else 0; '20 (T)' likewise."""
+def size_of(formula: str, n: int, force: bool, torque: bool, contacts: int = 2) -> int:
+    """'20 N' -> 20 n; '3 C' -> 3 contacts; '20 (T)' -> 20 with the reference torque, else 0; '(F)' likewise."""
     needs = re.findall(r"\((F|T)\)", formula)
     if ("F" in needs and not force) or ("T" in needs and not torque):
         return 0
-    expr = re.sub(r"\((F|T)\)", "", formula).replace("N", f"*{n}")
+    expr = re.sub(r"\((F|T)\)", "", formula).replace("N", f"*{n}").replace("C", f"*{contacts}")
     return int(eval(expr, {}))
 
 
 @pytest.mark.parametrize("ablation", list(ABLATIONS))
 @pytest.mark.parametrize("history", [0, 5, 10, 15])
-def test_layout_sizes_match_the_documentation(history, ablation):
+@pytest.mark.parametrize("contacts", [2, 4])
+def test_layout_sizes_match_the_documentation(history, ablation, contacts):
     config = tracking_config("squat", ablation, history)
     force, torque = ABLATIONS[ablation]
-    lay = layout(config.observations, ROBOT.nu, len(ROBOT.config.feet))
+    lay = layout(config.observations, ROBOT.nu, contacts)
     for group in ("actor", "critic"):
-        expected = [(t, size_of(f, history, force, torque)) for t, f, _ in documented(group)]
+        expected = [(t, size_of(f, history, force, torque, contacts)) for t, f, _ in documented(group)]
         expected = [(t, s) for t, s in expected if s]
         got = [(name, size) for name, _, _, size in lay.rows(group)]
         assert got == expected, group
@@ -64,6 +65,8 @@ def test_documented_slices_are_those_of_n10_and_the_totals_are_stated():
     text = DOC.read_text()
     assert f"actor: {lay.actor_dim}" in text and f"critic: {lay.critic_dim}" in text
     assert (lay.actor_dim, lay.critic_dim) == (481, 605)
+    hands = layout(tracking_config("squat").observations, ROBOT.nu, 4)  # feet and hands
+    assert f"{hands.actor_dim} and {hands.critic_dim}" in text and (hands.actor_dim, hands.critic_dim) == (487, 617)
 
 
 def test_observation_vectors_carry_the_named_quantities():

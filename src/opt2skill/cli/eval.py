@@ -273,7 +273,7 @@ def sweep(
     source = load_run_policy(run, checkpoint)
     ds = Dataset.open(dataset or source.spec.dataset)
     position, relation = choose_reference(ds, training_fingerprints(source.spec, run), index)
-    check_metric_fields(ds, source.spec.tracking.task, position)
+    check_metric_fields(ds, source.spec.tracking.task, position, source.spec.contact_names(source.robot))
     reference = ds[position]
     params = ", ".join(f"{k}={v:.3g}" for k, v in reference.params.items())
     info = {"dataset": str(Path(ds.root).resolve()), "index": int(ds.indices[position]), "params": reference.params,

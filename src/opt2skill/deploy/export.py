@@ -117,7 +117,8 @@ def metadata(source: RunPolicy, run: Path) -> dict[str, Any]:
     spec, robot, cfg = source.spec, source.robot, source.robot.config
     tracking = spec.tracking
     obs = tracking.observations
-    actor = layout(obs, robot.nu, len(cfg.feet)).actor
+    contacts = spec.contact_names(robot)
+    actor = layout(obs, robot.nu, len(contacts)).actor
     unknown = [name for name in actor if name not in TERMS]
     if unknown:
         raise DataError(f"the policy observes {unknown}, which the standalone player cannot build")
@@ -128,7 +129,7 @@ def metadata(source: RunPolicy, run: Path) -> dict[str, Any]:
         "robot": {"name": robot.name, "hash": robot.hash, "joint_names": cfg.joint_names,
                   "default_pose": cfg.default_pose.tolist(), "kp": (cfg.kp * tracking.actions.kp_scale).tolist(), "kd": cfg.kd.tolist(),
                   "torque_limit": cfg.torque_limit.tolist(), "velocity_limit": cfg.velocity_limit.tolist(),
-                  "feet": [f.name for f in cfg.feet]},
+                  "feet": [f.name for f in cfg.feet], "contacts": list(contacts)},
         "control": {
             "policy_dt": FRAME_DT, "training_physics_dt": TRAINING_PHYSICS_DT,
             "action_scale": tracking.actions.scale, "action_clip": tracking.actions.clip,

@@ -51,6 +51,12 @@ class PolicyMetadata:
         return list(self.robot["joint_names"])
 
     @property
+    def contacts(self) -> list[str]:
+        """The references' contacts the policy observes forces at, in its order (metadata written before
+        contacts beyond the feet has none: the robot's feet then)."""
+        return list(self.robot.get("contacts", self.robot["feet"]))
+
+    @property
     def nu(self) -> int:
         return len(self.robot["joint_names"])
 
@@ -124,6 +130,13 @@ def check(raw: Any, where: str) -> PolicyMetadata:
         stop = term.stop
     if stop != meta.obs_dim:
         raise DataError(f"{where}: observation terms cover {stop} entries; the observation has {meta.obs_dim}")
+    contacts = meta.contacts
+    if not (isinstance(contacts, list) and all(isinstance(c, str) for c in contacts)):
+        raise DataError(f"{where}: robot.contacts must be a list of end-effector names")
+    force = [t for t in meta.terms if t.name == "ref_contact_force"]
+    if force and force[0].size != 3 * len(contacts):
+        raise DataError(f"{where}: ref_contact_force has {force[0].size} entries; the metadata lists "
+                        f"{len(contacts)} contacts {contacts} (3 each)")
     if raw["action"]["dim"] != nu:
         raise DataError(f"{where}: the policy outputs {raw['action']['dim']} actions for {nu} joints")
     return meta

@@ -16,6 +16,7 @@ import numpy as np
 
 from opt2skill.deploy.metadata import PolicyMetadata
 from opt2skill.errors import DataError
+from opt2skill.eval.references import check_contacts
 from opt2skill.geometry import yaw_of
 
 # name -> what it is (frames as docs/conventions.md). Sizes come from the metadata.
@@ -29,8 +30,9 @@ TERMS = {
     "ref_base_lin_vel": "reference base linear velocity, base frame, frame t + reference.offset",
     "ref_base_ang_vel": "reference base angular velocity, base frame, frame t + reference.offset",
     "ref_joint_pos": "reference joint positions, frame t + reference.offset",
-    "ref_contact_force": "reference force on each foot (3 per foot, feet in robot.feet order), frame t, in the "
-                         "reference's heading frame (world axes turned by the reference base yaw)",
+    "ref_contact_force": "reference force on each contact (3 per contact, in robot.contacts order: feet, hands, "
+                         "elbows as the references have them), frame t, in the reference's heading frame (world "
+                         "axes turned by the reference base yaw)",
     "ref_joint_torque": "reference joint torques (N m), frame t (held over [t, t + dt))",
 }
 KINEMATIC = ("ref_base_lin_vel", "ref_base_ang_vel", "ref_joint_pos")
@@ -51,10 +53,8 @@ class Readings:
 class ReferenceFrames:
     """The reference quantities the actor reads, per 200 Hz frame, from a trajectory record."""
 
-    def __init__(self, traj, feet: list[str]):
-        missing = [f for f in feet if f not in traj.contact_names]
-        if missing:
-            raise DataError(f"the reference has contacts {list(traj.contact_names)}; the policy reads forces on {feet}")
+    def __init__(self, traj, contacts: list[str]):
+        check_contacts(traj.contact_names, contacts, "the reference")
         self.num_frames = traj.num_frames
         self.base_lin_vel = traj.base_lin_vel
         self.base_ang_vel = traj.base_ang_vel
@@ -62,7 +62,7 @@ class ReferenceFrames:
         self.joint_torque = traj.joint_torque
         quat = traj.qpos[:, 3:7] / np.linalg.norm(traj.qpos[:, 3:7], axis=1, keepdims=True)
         yaw = yaw_of(quat)
-        force = traj.contact_wrench[:, [traj.contact_names.index(f) for f in feet], :3]
+        force = traj.contact_wrench[:, :, :3]
         c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         self.force_heading = np.stack([c * force[..., 0] + s * force[..., 1], -s * force[..., 0] + c * force[..., 1],
                                        force[..., 2]], axis=-1).reshape(len(yaw), -1)

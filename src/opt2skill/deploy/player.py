@@ -27,7 +27,7 @@ from opt2skill.errors import ConfigError, DataError
 from opt2skill.geometry import projected_gravity, quat_error
 from opt2skill.model import load_robot
 from opt2skill.model.robot import Robot
-from opt2skill.model.sensors import SensorLayout
+from opt2skill.model.sensors import SensorLayout, contact_wrenches
 from opt2skill.scene.build import build_model
 from opt2skill.scene.description import Scene
 
@@ -90,8 +90,8 @@ class Player:
         self.kp, self.kd, self.limit = meta.array("kp"), meta.array("kd"), meta.array("torque_limit")
         self.scene: Scene | None = None
         self._use_scene(Scene())
-        self.feet = list(meta.robot["feet"])
-        self._foot_rows = [self.sensors.foot_names.index(f) for f in self.feet]
+        self.contacts = meta.contacts  # the references' contacts the policy reads forces at
+        self._contact_rows = self.sensors.contact_rows(self.contacts)
         self.default_pose = meta.array("default_pose")
         self.scale, self.clip = float(meta.control["action_scale"]), float(meta.control["action_clip"])
         self.sigma = {k: config.noise * float(v) for k, v in meta.observation["noise_std"].items()}
@@ -158,7 +158,7 @@ class Player:
             raise DataError(f"the reference has {reference.qpos.shape[1]} positions; robot '{self.robot.name}' has {nq}")
         self._use_scene(reference.scene)
         m, d = self.model, self.data
-        ref = ReferenceFrames(reference, self.feet)
+        ref = ReferenceFrames(reference, self.contacts)
         mujoco.mj_resetData(m, d)  # props at their scene poses
         d.qpos[:nq], d.qvel[:nv] = reference.qpos[0], reference.qvel[0]
         d.ctrl[:] = reference.qpos[0, 7:]  # the servos hold the start pose
@@ -196,7 +196,7 @@ class Player:
             qvel.append(d.qvel[:nv].copy())
             torque.append(self.sensors.take(readings, "joint_torque").mean(axis=0))  # MEAN over the step
             wrench.append(self._wrenches(readings).mean(axis=0))
-            active.append(self.sensors.contact_found(readings[-1])[self._foot_rows] > 0)  # LAST
+            active.append(self._found(readings[-1]) > 0)  # LAST
             ended = self._judge(d.qpos[:nq], reference.qpos[t + 1])
             if ended:
                 cause = ended
@@ -207,15 +207,22 @@ class Player:
         for series in (torque, wrench, active):
             series.append(series[-1])  # the last frame repeats the last step's torques and forces (as the record)
         tracked = build_trajectory(self.robot, np.array(qpos), np.array(qvel), np.array(torque), np.array(wrench),
-                                   np.array(active), task=reference.task, contact_names=tuple(self.feet),
+                                   np.array(active), task=reference.task, contact_names=tuple(self.contacts),
                                    params=reference.params, seed=reference.seed, ee_names=reference.ee_names,
                                    scene=reference.scene)
         return PlayerRollout(reference, tracked, cause, np.array(seen) if keep_observations else None)
 
     def _wrenches(self, sensordata: np.ndarray) -> np.ndarray:
-        """Wrench on each foot (..., nfeet, 6), world axes, about its sole site."""
-        about = self.sensors.take(sensordata, "sole_pos")
-        return self.sensors.contact_wrench(sensordata, about)[..., self._foot_rows, :]
+        """Wrench on each of the policy's contacts (..., ncontacts, 6), world axes: a foot's about its
+        sole site, a point contact's (hand, elbow) force with a zero torque."""
+        s = self.sensors
+        feet = s.contact_wrench(sensordata, s.take(sensordata, "sole_pos"))
+        return contact_wrenches(feet, s.point_force(sensordata), self._contact_rows)
+
+    def _found(self, sensordata: np.ndarray) -> np.ndarray:
+        """Contact points of each of the policy's contacts (ncontacts,)."""
+        s = self.sensors
+        return np.concatenate([s.contact_found(sensordata), s.point_found(sensordata)])[self._contact_rows]
 
     def _judge(self, qpos: np.ndarray, ref_qpos: np.ndarray) -> str | None:
         """The training task's fall, height and orientation terminations on the true state (0 switches

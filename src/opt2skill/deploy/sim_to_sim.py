@@ -31,7 +31,7 @@ def deploy_sim(onnx_path: Path, dataset_dir: Path, n: int = 20, split: str = "he
         raise DataError(f"dataset {dataset_dir} was made for another robot file than the policy {onnx_path}")
     refs = select_references(dataset, meta.training["reference_fingerprints"], n, split, list(indices),
                              what=f"the policy {onnx_path}")
-    check_metric_fields(dataset, meta.task["name"], refs.positions[0])
+    check_metric_fields(dataset, meta.task["name"], refs.positions[0], player.contacts)
     references = [dataset[p] for p in refs.positions]
     from tqdm import tqdm
 

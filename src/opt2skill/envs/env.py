@@ -23,6 +23,7 @@ from opt2skill.envs.reference import ReferenceBank
 from opt2skill.envs.rewards import StepContext, penalty_values, reward_terms, task_errors
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
+from opt2skill.model.sensors import SensorLayout, contact_wrenches
 from opt2skill.sim import BatchedSim, Flat, MujocoBatchedSim, SimConfig, SimStep
 
 CAUSES = ("time_out", "fall", "height_error", "orientation_error", "xy_error", "unstable")
@@ -84,7 +85,9 @@ class TrackingEnv:
         self.terrains = list(self.sim.terrains)
         self._made_on_flat = np.array([isinstance(grounds[g], Flat) for g in ground], dtype=bool)
         obs = config.observations
-        self.layout: ObservationLayout = layout(obs, self.nu, len(robot.config.feet))
+        self.contact_names = bank.contact_names
+        self._contact_rows = SensorLayout.from_model(robot.mj_model, robot.config).contact_rows(self.contact_names)
+        self.layout: ObservationLayout = layout(obs, self.nu, len(self.contact_names))
         ee_names = list(robot.config.end_effectors)
         self._ee_index = np.array([ee_names.index(e) for e in obs.end_effectors])
         self.default_pose = robot.config.default_pose.astype(np.float64)
@@ -136,6 +139,13 @@ class TrackingEnv:
         """(dataset position of each world's trajectory, its current frame t)."""
         return self.bank.positions[self.traj], self.frame.copy()
 
+    def contact_wrenches(self, out: SimStep) -> tuple[np.ndarray, np.ndarray]:
+        """MEAN wrenches (N, ncontacts, 6) on the references' contacts (a point contact's torque 0) and
+        whether each touches something (N, ncontacts), LAST, from simulator outputs `out`."""
+        rows = self._contact_rows
+        wrench = contact_wrenches(out.contact_wrench_mean, out.point_force_mean, rows)
+        return wrench, np.concatenate([out.contact_found, out.point_found], axis=1)[:, rows] > 0
+
     def actions_for_targets(self, targets: np.ndarray) -> np.ndarray:
         """The actions whose PD targets are `targets` (N, nu): the inverse of the action map."""
         return (np.asarray(targets) - self.default_pose) / self.action_scale
@@ -171,7 +181,7 @@ class TrackingEnv:
         params.kp_factor *= self.config.actions.kp_scale
         targets = qpos[:, 7:]
         out = self.sim.reset(worlds, qpos, qvel, targets=targets, params=params)
-        m = measure(out, self.sim.z_offset[worlds], self._ee_index)
+        m = measure(out, self.sim.z_offset[worlds], self._ee_index, self._contact_rows)
         if self.m is None:  # first reset of every world
             self.m, self.state = m, out
         else:
@@ -202,7 +212,7 @@ class TrackingEnv:
             raise ConfigError(f"actions must have shape {(self.num_envs, self.nu)}, got {a.shape}")
         pushed = self._push()
         out = self.sim.step(self.default_pose + self.action_scale * a)
-        m = measure(out, self.sim.z_offset, self._ee_index)
+        m = measure(out, self.sim.z_offset, self._ee_index, self._contact_rows)
         bank = self.bank
         kin, dyn = bank.kin[self._row + 1], bank.dyn[self._row]  # frame t + 1 (state), frame t (held over the step)
         ctx = StepContext(m, _columns(kin, self._kin_cols), _columns(dyn, self._dyn_cols), a, self.action_1,

@@ -30,8 +30,9 @@ class TrackedMotion:
     qpos: np.ndarray  # (T, nq), base height relative to the world's start level
     qvel: np.ndarray  # (T, nv)
     joint_torque: np.ndarray  # (T, nu)
-    contact_wrench: np.ndarray  # (T, nfeet, 6) on each foot, world axes, about its sole site
-    contact_active: np.ndarray  # (T, nfeet) bool
+    contact_wrench: np.ndarray  # (T, nc, 6) on each of the reference's contacts, world axes (a foot's torque
+    #                             about its sole site, a point contact's 0)
+    contact_active: np.ndarray  # (T, nc) bool
     reward: float  # sum of the step rewards
     terms: dict[str, float]  # sum of each term over the episode
     cause: str  # why the episode ended (CAUSES)
@@ -83,8 +84,9 @@ def track(env: TrackingEnv, policy: Policy, trajectories: np.ndarray,
         qpos.append(out.qpos)
         qvel.append(out.qvel)
         torque.append(out.torque_mean)
-        wrench.append(out.contact_wrench_mean)
-        active.append(out.contact_found > 0)
+        w, a = env.contact_wrenches(out)
+        wrench.append(w)
+        active.append(a)
         steps[running] += 1
         reward[running] += result.reward[running]
         for name, value in result.terms.items():

@@ -26,9 +26,9 @@ class Measurement:
     joint_acc: np.ndarray  # (N, nu) MEAN over the step
     ee_pos: np.ndarray  # (N, 3 ne) torso-relative, base frame, END
     torque: np.ndarray  # (N, nu) MEAN over the step (what the reference's held frame-t torque is compared with)
-    force_world: np.ndarray  # (N, 3 nfeet) MEAN force on each foot, world axes
-    force_heading: np.ndarray  # (N, 3 nfeet) the same, in the base's heading (yaw) frame
-    contact: np.ndarray  # (N, nfeet) bool, LAST: the foot touches the ground
+    force_world: np.ndarray  # (N, 3 ncontacts) MEAN force on each of the references' contacts, world axes
+    force_heading: np.ndarray  # (N, 3 ncontacts) the same, in the base's heading (yaw) frame
+    contact: np.ndarray  # (N, ncontacts) bool, LAST: the contact touches something
 
     def assign(self, rows: np.ndarray, other: Measurement) -> None:
         for f in fields(self):
@@ -47,15 +47,18 @@ class Readings:
     gravity: np.ndarray  # (N, 3) projected gravity, body frame (not renormalized)
 
 
-def measure(out: SimStep, z_offset: np.ndarray, ee_index: np.ndarray) -> Measurement:
-    """Measurement of a step's (or a reset's) outputs; `ee_index` selects the tracked end effectors."""
+def measure(out: SimStep, z_offset: np.ndarray, ee_index: np.ndarray, contact_rows: np.ndarray) -> Measurement:
+    """Measurement of a step's (or a reset's) outputs; `ee_index` selects the tracked end effectors,
+    `contact_rows` the references' contacts among the feet then the point contacts
+    (`SensorLayout.contact_rows`)."""
     n = len(out.qpos)
     quat = out.qpos[:, 3:7]
     rot = quat_to_mat(quat)  # body -> world
     base_pos = out.qpos[:, :3].copy()
     base_pos[:, 2] -= z_offset
     rel = out.ee_pos[:, ee_index] - out.qpos[:, None, :3]
-    force = out.contact_wrench_mean[:, :, :3]
+    force = np.concatenate([out.contact_wrench_mean[:, :, :3], out.point_force_mean], axis=1)[:, contact_rows]
+    found = np.concatenate([out.contact_found, out.point_found], axis=1)[:, contact_rows]
     c, s = rot[:, 0, 0], rot[:, 1, 0]  # heading direction (cos, sin) up to a positive factor
     norm = np.sqrt(c * c + s * s)
     norm[norm < 1e-9] = 1.0
@@ -74,5 +77,5 @@ def measure(out: SimStep, z_offset: np.ndarray, ee_index: np.ndarray) -> Measure
         torque=out.torque_mean,
         force_world=force.reshape(n, -1),
         force_heading=heading.reshape(n, -1),
-        contact=out.contact_found > 0,
+        contact=found > 0,
     )

@@ -31,15 +31,16 @@ CRITIC_TERMS = (
 )
 
 
-def term_sizes(config: ObservationConfig, nu: int, nfeet: int) -> dict[str, int]:
+def term_sizes(config: ObservationConfig, nu: int, ncontacts: int) -> dict[str, int]:
+    """Size of every term; `ncontacts` contacts of 3 force components each (feet, hands, elbows)."""
     n, ne = config.history, len(config.end_effectors)
     return {
         "base_pos": 3, "base_quat": 4, "base_lin_vel": 3, "base_ang_vel": 3, "projected_gravity": 3,
         "joint_pos_history": n * nu, "joint_vel": nu, "ee_pos": 3 * ne, "action_history": n * nu,
-        "contact_force": 3 * nfeet, "joint_torque": nu, "kp": nu, "kd": nu,
+        "contact_force": 3 * ncontacts, "joint_torque": nu, "kp": nu, "kd": nu,
         "ref_base_pos": 3, "ref_base_quat": 4, "ref_base_lin_vel": 3, "ref_base_ang_vel": 3, "ref_joint_pos": nu,
         "ref_joint_vel": nu, "ref_ee_pos": 3 * ne,
-        "ref_contact_force": 3 * nfeet if config.reference_force else 0,
+        "ref_contact_force": 3 * ncontacts if config.reference_force else 0,
         "ref_joint_torque": nu if config.reference_torque else 0,
     }
 
@@ -64,8 +65,8 @@ class ObservationLayout:
         return [(name, s.start, s.stop, s.stop - s.start) for name, s in getattr(self, group).items()]
 
 
-def layout(config: ObservationConfig, nu: int, nfeet: int) -> ObservationLayout:
-    sizes = term_sizes(config, nu, nfeet)
+def layout(config: ObservationConfig, nu: int, ncontacts: int) -> ObservationLayout:
+    sizes = term_sizes(config, nu, ncontacts)
 
     def place(terms):
         out, start = {}, 0

@@ -1,7 +1,7 @@
 """Reference frames the tracking task reads: every trajectory of a dataset in two float32 matrices.
 
 `kin` holds what a frame's state is (base pose and velocities, joints, end effectors), `dyn` what
-acts over the frame's step (joint torques, foot contact forces). One row per frame, trajectories
+acts over the frame's step (joint torques, the forces at the references' contacts, `contact_names`). One row per frame, trajectories
 stacked: reading the frames of all worlds is one gather per matrix. docs/envs.md has the columns.
 """
 
@@ -43,6 +43,7 @@ class ReferenceBank:
     task: str
     xy_range: tuple[tuple[float, float], tuple[float, float]]  # extent of the base paths, for terrain
     scenes: tuple[Scene, ...]  # (n,) the scene each trajectory was made on
+    contact_names: tuple[str, ...]  # the references' contacts (feet, hands, elbows), the order of their forces
     # False for kinematic references (IK, retargeted human motion): their torques and contact forces
     # are zeros, so only the Pos inputs may be used (`envs.config.check_reference_inputs`).
     has_dynamics: bool = True
@@ -102,10 +103,10 @@ class ReferenceBank:
                             f"torques; robot '{robot.name}' has {nq} and {nu}")
         if np.any(length < 2):
             raise DataError("every reference trajectory needs at least 2 frames")
-        feet = [foot.name for foot in robot.config.feet]
-        if tuple(contact_names) != tuple(feet):
-            raise DataError(f"the tracking task compares the feet's contact forces {feet}; "
-                            f"the references have contacts {list(contact_names)}")
+        unknown = [c for c in contact_names if c not in robot.config.end_effectors]
+        if unknown or len(set(contact_names)) != len(contact_names):
+            raise DataError(f"the references' contacts {list(contact_names)} must be distinct end effectors of "
+                            f"robot '{robot.name}' ({list(robot.config.end_effectors)})")
         with_props = sorted({p.name for s in scenes for p in s.props})
         if with_props:
             raise DataError(f"the tracking environment rebuilds the references' terrain but not their props yet; "
@@ -116,7 +117,7 @@ class ReferenceBank:
         ee = [list(ee_names).index(e) for e in end_effectors]
         qpos = f["qpos"]
         quat = qpos[:, 3:7] / np.linalg.norm(qpos[:, 3:7], axis=1, keepdims=True)
-        force = f["contact_wrench"][:, :, :3]  # (rows, nfeet, 3) on the robot, world axes
+        force = f["contact_wrench"][:, :, :3]  # (rows, ncontacts, 3) on the robot, world axes
         yaw = yaw_of(quat)
         c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         heading = np.stack([c * force[..., 0] + s * force[..., 1], -s * force[..., 0] + c * force[..., 1],
@@ -140,7 +141,8 @@ class ReferenceBank:
         xy = qpos[:, :2]
         xy_range = ((float(xy[:, 0].min()), float(xy[:, 0].max())), (float(xy[:, 1].min()), float(xy[:, 1].max())))
         return cls(kin, dyn, kin_cols, dyn_cols, np.asarray(start, dtype=np.int64), np.asarray(length, dtype=np.int64),
-                   np.asarray(positions), str(task), xy_range, tuple(scenes), bool(has_dynamics), str(source))
+                   np.asarray(positions), str(task), xy_range, tuple(scenes), tuple(contact_names),
+                   bool(has_dynamics), str(source))
 
     def grounds(self) -> tuple[list[Terrain], np.ndarray]:
         """The distinct grounds the trajectories were made on (in order of first use) and the index

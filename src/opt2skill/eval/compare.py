@@ -77,7 +77,9 @@ def compare(runs: list[Path], dataset: Path | None = None, n: int = 20, split: s
     if len(tasks) > 1:
         raise DataError(f"the runs were trained on different tasks ({', '.join(sorted(tasks))}); compare runs of one task")
     ds = Dataset.open(dataset or loaded[0].spec.dataset)
-    check_metric_fields(ds, tasks.pop())
+    task = tasks.pop()
+    for policy in loaded:
+        check_metric_fields(ds, task, contacts=policy.spec.contact_names(policy.robot))
     trained = [training_fingerprints(p.spec, p.info["run"]) for p in loaded]
     union = None if any(t is None for t in trained) else set().union(*trained)
     refs = select_references(ds, union, n, split, list(indices), what="one of the runs")

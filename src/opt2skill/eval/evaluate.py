@@ -85,7 +85,7 @@ def load_run_policy(run: Path, checkpoint: Path | None = None) -> RunPolicy:
         raise DataError(f"checkpoint {path} is not one of run {run}'s ({ppo_dir}, {distill_dir} for the "
                         f"distillation stage, or {best_dir}); evaluate the run it belongs to")
     policy, _ = load_policy(run, path)
-    expected = layout(spec.tracking.observations, robot.nu, len(robot.config.feet)).actor_dim
+    expected = layout(spec.tracking.observations, robot.nu, len(spec.contact_names(robot))).actor_dim
     if policy.obs_dim != expected:
         raise DataError(f"checkpoint {path} takes {policy.obs_dim} observations; run {run}'s task gives {expected} "
                         "(a checkpoint of another run or configuration)")
@@ -136,7 +136,7 @@ def open_references(request: EvalRequest, run: RunPolicy) -> tuple[Dataset, Refe
                         f"than run {request.run} (hash {str(dataset.identity.get('robot_hash'))[:12]})")
     refs = select_references(dataset, training_fingerprints(run.spec, run.info["run"]), request.n, request.split,
                              list(request.indices), what=f"run {request.run}")
-    check_metric_fields(dataset, run.spec.tracking.task, refs.positions[0])
+    check_metric_fields(dataset, run.spec.tracking.task, refs.positions[0], run.spec.contact_names(run.robot))
     return dataset, refs
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -71,10 +71,12 @@ class ReferenceSet:
                 "fingerprints": list(self.fingerprints)}
 
 
-def check_metric_fields(dataset: Dataset, task: str | None = None, position: int = 0) -> None:
+def check_metric_fields(dataset: Dataset, task: str | None = None, position: int = 0,
+                        contacts: Sequence[str] | None = None) -> None:
     """The references must carry what the metrics compare: both hands and feet as end effectors,
-    the feet as contacts (for the contact-force error), and the policy's task (checked on the
-    trajectory at `position`: every file repeats the dataset's task and robot)."""
+    and what the policy was trained on (checked on the trajectory at `position`: every file repeats
+    the dataset's task, robot and contacts): its task and its `contacts` (the contacts whose forces it
+    observes, in their order; None: not checked)."""
     if not len(dataset):
         raise DataError(f"dataset {dataset.root} has no accepted trajectories to evaluate on")
     meta = dataset.meta(position)
@@ -84,9 +86,15 @@ def check_metric_fields(dataset: Dataset, task: str | None = None, position: int
     if missing:
         raise DataError(f"dataset {dataset.root} lacks the end effectors {missing} that E_ee-hand/E_ee-foot compare "
                         f"(its records have {list(meta.ee_names)})")
-    if tuple(meta.contact_names) != FEET:
-        raise DataError(f"dataset {dataset.root} has contacts {list(meta.contact_names)}; the contact-force error "
-                        f"compares the feet {list(FEET)}")
+    if contacts is not None:
+        check_contacts(meta.contact_names, contacts, f"dataset {dataset.root}")
+
+
+def check_contacts(found: Sequence[str], trained: Sequence[str], what: str) -> None:
+    """One error naming both sets unless the references' contacts `found` are the policy's `trained`."""
+    if tuple(found) != tuple(trained):
+        raise DataError(f"{what} has contacts {list(found)}; the policy was trained on references with contacts "
+                        f"{list(trained)} (its contact-force observations are sized and ordered by them)")
 
 
 def select_references(dataset: Dataset, training: Collection[str] | None, n: int, split: str = "held-out",

@@ -112,6 +112,54 @@ def _add_sensors(spec: mujoco.MjSpec, config: RobotConfig) -> None:
         spec.add_sensor(name=f"eevel_{name}", type=s.mjSENS_FRAMELINVEL, objtype=site, objname=site_name)
     for name, site_name in config.end_effectors.items():
         spec.add_sensor(name=f"eeacc_{name}", type=s.mjSENS_FRAMELINACC, objtype=site, objname=site_name)
+    # Point contacts (hands, elbows: every end effector that is not a foot): the net contact force on
+    # each collision geom at the end effector's site, summed per end effector by `SensorLayout`.
+    for name, geoms in point_contact_geoms(spec, config).items():
+        for k, geom in enumerate(geoms):
+            spec.add_sensor(
+                name=f"pcontact_{name}_{k}", type=s.mjSENS_CONTACT, objtype=mujoco.mjtObj.mjOBJ_GEOM,
+                objname=geom, intprm=[1 | 2, 3, 1],  # data: found|force; reduce: netforce (3), one
+            )
+
+
+def point_contact_geoms(spec: mujoco.MjSpec, config: RobotConfig) -> dict[str, tuple[str, ...]]:
+    """The robot's collision geoms whose volume holds each point-contact end effector's site, at the
+    model's reference pose: the hand's sphere for a hand; for an elbow (a site on the joint axis) the
+    links on both sides of the joint. Contacts on these geoms are that end effector's contacts."""
+    feet = {f.name for f in config.feet}
+    points = {name: site for name, site in config.end_effectors.items() if name not in feet}
+    if not points:
+        return {}
+    model = spec.copy().compile()  # the robot as built so far (no sensors needed for geometry)
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    robot_geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] != 0
+                   and (model.geom_contype[g] or model.geom_conaffinity[g])]
+    out = {}
+    for name, site in points.items():
+        p = data.site_xpos[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, site)]
+        out[name] = tuple(model.geom(g).name for g in robot_geoms
+                          if model.geom(g).name and _inside(model, data, g, p))
+    return out
+
+
+def _inside(model: mujoco.MjModel, data: mujoco.MjData, geom: int, point: np.ndarray, tol: float = 1e-6) -> bool:
+    """Whether `point` (world) lies in the geom's volume (primitive shapes; others: their bounding sphere)."""
+    g = mujoco.mjtGeom
+    p = data.geom_xmat[geom].reshape(3, 3).T @ (point - data.geom_xpos[geom])  # geom frame
+    size, kind = model.geom_size[geom], model.geom_type[geom]
+    if kind == g.mjGEOM_SPHERE:
+        return bool(np.linalg.norm(p) <= size[0] + tol)
+    if kind == g.mjGEOM_CAPSULE:
+        axis = np.array([0.0, 0.0, np.clip(p[2], -size[1], size[1])])
+        return bool(np.linalg.norm(p - axis) <= size[0] + tol)
+    if kind == g.mjGEOM_CYLINDER:
+        return bool(np.hypot(p[0], p[1]) <= size[0] + tol and abs(p[2]) <= size[1] + tol)
+    if kind == g.mjGEOM_BOX:
+        return bool(np.all(np.abs(p) <= size + tol))
+    if kind == g.mjGEOM_ELLIPSOID:
+        return bool(np.sum((p / size) ** 2) <= 1.0 + tol)
+    return bool(np.linalg.norm(p) <= model.geom_rbound[geom] + tol)
 
 
 def _check_joint_order(config: RobotConfig, model_joints: list[str], where: str) -> None:

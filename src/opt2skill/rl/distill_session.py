@@ -195,7 +195,8 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     ppo = distill.finetune_ppo()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
-                   num_envs=request.num_envs, seed=request.seed)
+                   num_envs=request.num_envs, seed=request.seed,
+                   contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names))
     invocation = {"command": request.command, "steps": request.steps, "init": "distill", "distill_steps": distill_steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
     with folder_lock(request.out):  # one lock for both stages: RUN/distill is inside RUN

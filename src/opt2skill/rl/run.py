@@ -45,9 +45,25 @@ class RunSpec:
     ppo: PPOConfig
     num_envs: int
     seed: int
+    # The dataset's contacts, whose forces the policy observes (docs/envs.md); None: the robot's feet, as
+    # every run before contacts beyond the feet (left out of run.json then, so those runs still resume).
+    contacts: tuple[str, ...] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return json.loads(dumps(dataclasses.asdict(self)))
+        data = json.loads(dumps(dataclasses.asdict(self)))
+        if data["contacts"] is None:
+            del data["contacts"]
+        return data
+
+    def contact_names(self, robot) -> tuple[str, ...]:
+        """The contacts the run's policy observes forces at."""
+        return self.contacts if self.contacts is not None else tuple(f.name for f in robot.config.feet)
+
+    @staticmethod
+    def contacts_of(robot, contact_names) -> tuple[str, ...] | None:
+        """The `contacts` entry of a run on references with these contacts."""
+        names = tuple(contact_names)
+        return None if names == tuple(f.name for f in robot.config.feet) else names
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> RunSpec:

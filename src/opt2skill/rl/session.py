@@ -17,6 +17,7 @@ from opt2skill.envs import ABLATIONS, ReferenceBank, TrackingEnv, evaluation_con
 from opt2skill.envs.config import TrackingConfig, check_reference_inputs
 from opt2skill.envs.evaluation import TrackedMotion, track
 from opt2skill.errors import ConfigError, DataError
+from opt2skill.eval.references import check_contacts
 from opt2skill.folder_lock import folder_lock
 from opt2skill.model import load_robot
 from opt2skill.output_paths import check_output_dir
@@ -91,6 +92,7 @@ def held_out_judge(request: TrainRequest, dataset, robot, tracking: TrackingConf
                         f"robot '{held_robot.name}'; training is on '{dataset.identity.get('task')}' of '{robot.name}'")
     if Path(request.held_out).resolve() == Path(request.dataset).resolve():
         raise ConfigError("--held-out must be references the run does not train on (another seed), not --dataset")
+    check_contacts(held_out.meta(0).contact_names, dataset.meta(0).contact_names, f"--held-out {request.held_out}")
     references = [held_out[i] for i in range(min(request.judge.n, len(held_out)))]
     return HeldOutJudge(request.out, robot, references, tracking, request.judge, threads=request.threads)
 
@@ -136,7 +138,8 @@ def train(request: TrainRequest, progress: bool = True, announce: Callable[[str]
     ppo = PPOConfig()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
-                   num_envs=request.num_envs, seed=request.seed)
+                   num_envs=request.num_envs, seed=request.seed,
+                   contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names))
     invocation = {"command": request.command, "steps": request.steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
     check_run(request.out, spec)  # a resume with another configuration: said before the slow loading

@@ -75,6 +75,10 @@ class SimStep:
     contact_wrench: np.ndarray  # (N, nfeet, 6) LAST, on the foot, world axes, about its sole site
     contact_wrench_mean: np.ndarray  # (N, nfeet, 6) MEAN
     contact_found: np.ndarray  # (N, nfeet) LAST, number of contact points of each foot
+    point_force: np.ndarray  # (N, npoint, 3) LAST, contact force on each point-contact end effector (hands,
+    #                          elbows: SensorLayout.point_names), world axes
+    point_force_mean: np.ndarray  # (N, npoint, 3) MEAN
+    point_found: np.ndarray  # (N, npoint) LAST, number of contact points of each
     unstable: np.ndarray  # (N,) bool: the world diverged this step; it was held, reset it
 
     def rows(self, index: np.ndarray) -> SimStep:

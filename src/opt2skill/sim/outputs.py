@@ -64,6 +64,7 @@ class OutputDecoder:
         last = sensordata[:, -1]  # views into the caller's buffer below: every output is computed or copied
         wrench = lay.contact_wrench(sensordata, lay.take(sensordata, "sole_pos"))  # (N, S, nfeet, 6)
         torque = lay.take(sensordata, "joint_torque")
+        point = lay.point_force(sensordata)  # (N, S, npoint, 3)
         ee_acc = lay.take(last, "ee_acc") + gravity[:, None]  # framelinacc excludes gravity
         joint_vel = qvel[:, BASE_QVEL:]
         return SimStep(
@@ -83,6 +84,9 @@ class OutputDecoder:
             contact_wrench=wrench[:, -1],
             contact_wrench_mean=wrench.sum(axis=1) / wrench.shape[1],
             contact_found=lay.contact_found(last),
+            point_force=point[:, -1],
+            point_force_mean=point.sum(axis=1) / point.shape[1],
+            point_found=lay.point_found(last),
             unstable=np.zeros(len(time), dtype=bool),
         )
 
