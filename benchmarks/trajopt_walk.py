@@ -11,10 +11,10 @@ solve.
 Targets: issue 3, median <= 15 s per 14-s trajectory per core including validation, >= 90 %
 accepted over the full parameter ranges; issue 19, median <= 5 s and >= 95 % accepted (not met:
 docs/trajopt.md says what limits it). `--set key=value` (repeatable) solves with other settings, e.g.
-the previous defaults next to the current ones on the same walks:
+a lever against the defaults on the same walks (docs/trajopt.md, "Speed", has the levers measured):
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --seed 0
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --seed 0 --set solver.feasible_iter=0
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --seed 0 --set receding.max_iter=10
 """
 
 from __future__ import annotations
