@@ -131,22 +131,22 @@ def _feedback_plain(replayer):
 
     from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
 
-    self, tr, cfg, pm = replayer, replayer.traj, replayer.robot.config, replayer.robot.pin_model
+    r, tr, cfg, pm = replayer, replayer.traj, replayer.robot.config, replayer.robot.pin_model
     ref = replayer.feedback_references()
     qpos_ref, q_ref, v_ref, tau_ref, node, gains = (ref[k] for k in ("qpos_ref", "q_ref", "v_ref", "tau_ref", "node", "gains"))
     nstep = len(qpos_ref)
-    m, d = self.model, self.data
+    m, d = r.model, r.data
     mujoco.mj_resetData(m, d)
-    d.qpos[: self.nq], d.qvel[: self.nv] = tr.qpos[0], tr.qvel[0]
-    qpos = np.empty((nstep, self.nq))
+    d.qpos[: r.nq], d.qvel[: r.nv] = tr.qpos[0], tr.qvel[0]
+    qpos = np.empty((nstep, r.nq))
     for i in range(nstep):
-        qpos_now, qvel_now = d.qpos[: self.nq], d.qvel[: self.nv]
+        qpos_now, qvel_now = d.qpos[: r.nq], d.qvel[: r.nv]
         q = qpos_mj_to_pin(qpos_now)
         dx = np.concatenate([pin.difference(pm, q_ref[i], q), qvel_mj_to_pin(qpos_now, qvel_now) - v_ref[i]])
-        u = tau_ref[i] - gains[node[i]] @ dx + self._joint_losses(qvel_now[6:])
+        u = tau_ref[i] - gains[node[i]] @ dx + r._joint_losses(qvel_now[6:])
         d.ctrl[:] = qpos_ref[i, 7:] + (u + cfg.kd * v_ref[i, 6:]) / cfg.kp
         mujoco.mj_step(m, d)
-        qpos[i] = d.qpos[: self.nq]
+        qpos[i] = d.qpos[: r.nq]
     return qpos
 
 
