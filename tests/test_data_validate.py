@@ -122,3 +122,47 @@ def test_task_errors_and_limits_are_judged(robot, squat):
         CONFIG.with_overrides({"foot_slip": "abc"})
     with pytest.raises(ConfigError, match="unknown replay setting"):
         CONFIG.with_overrides({"replay.windw": 1})
+
+
+def _feedback_plain(replayer):
+    """The feedback replay's law written plainly (the form `Replayer.feedback` is optimized from)."""
+    import mujoco
+    import pinocchio as pin
+
+    from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
+
+    r, tr, cfg, pm = replayer, replayer.traj, replayer.robot.config, replayer.robot.pin_model
+    ref = replayer.feedback_references()
+    qpos_ref, q_ref, v_ref, tau_ref, node, gains = (ref[k] for k in ("qpos_ref", "q_ref", "v_ref", "tau_ref", "node", "gains"))
+    nstep = len(qpos_ref)
+    m, d = r.model, r.data
+    mujoco.mj_resetData(m, d)
+    d.qpos[: r.nq], d.qvel[: r.nv] = tr.qpos[0], tr.qvel[0]
+    qpos = np.empty((nstep, r.nq))
+    for i in range(nstep):
+        qpos_now, qvel_now = d.qpos[: r.nq], d.qvel[: r.nv]
+        q = qpos_mj_to_pin(qpos_now)
+        dx = np.concatenate([pin.difference(pm, q_ref[i], q), qvel_mj_to_pin(qpos_now, qvel_now) - v_ref[i]])
+        u = tau_ref[i] - gains[node[i]] @ dx + r._joint_losses(qvel_now[6:])
+        d.ctrl[:] = qpos_ref[i, 7:] + (u + cfg.kd * v_ref[i, 6:]) / cfg.kp
+        mujoco.mj_step(m, d)
+        qpos[i] = d.qpos[: r.nq]
+    return qpos
+
+
+def test_feedback_replay_is_bitwise_its_plain_law(robot):
+    """`Replayer.feedback` is written for speed; its states are exactly those of the plain law,
+    also when the start is pushed so the feedback acts (a figure of the validation must not move)."""
+    from opt2skill.data.replay import Replayer
+
+    task = get_task("squat", robot, {"solver.keep_gains": True})
+    traj = task.solve({"depth": 0.1}, 0)
+    qvel = traj.qvel.copy()
+    qvel[0, :3] += [0.2, -0.1, 0.05]  # a push: the base moves off the reference at once
+    qvel[0, 8] += 1.0
+    pushed = replace(traj, qvel=qvel)
+    for record in (traj, pushed):
+        fast, _ = Replayer(robot, record, CONFIG.replay).feedback_states()
+        plain = _feedback_plain(Replayer(robot, record, CONFIG.replay))
+        assert fast.shape == plain.shape
+        assert np.array_equal(fast, plain)

@@ -162,43 +162,95 @@ class Replayer:
         default), or u alone (the servo target set at the measured state). None without
         `knots["gains"]`.
         """
+        states = self.feedback_states()
+        if states is None:
+            return None
+        qpos, sensors = states
+        return self._measure(0, len(qpos), qpos, sensors)
+
+    def feedback_references(self) -> dict[str, np.ndarray] | None:
+        """Per physics step: the reference qpos (MuJoCo layout) and q, v (Pinocchio's), the
+        reference torque and the solver node whose gains apply; and the gains. None without gains."""
         k = self.traj.knots
         if "gains" not in k or "dt" not in k or "time" not in k:
             return None
-        tr, cfg, pm = self.traj, self.robot.config, self.robot.pin_model
+        tr = self.traj
         nstep = int(round(tr.duration / self.dt))
         frac = self._frac(0, nstep)
         qpos_ref = np.concatenate(
             [_interp(tr.qpos[:, :3], frac), _interp_quat(tr.qpos[:, 3:7], frac), _interp(tr.qpos[:, 7:], frac)], axis=1
         )
-        q_ref = qpos_mj_to_pin(qpos_ref)
-        v_ref = _interp(qvel_mj_to_pin(tr.qpos, tr.qvel), frac)
-        tau_ref = tr.joint_torque[np.clip(np.floor(frac + 1e-9).astype(int), 0, tr.num_frames - 1)]
         running = np.flatnonzero(np.asarray(k["dt"]) > 0)
         starts = np.asarray(k["time"])[running]
-        node = running[np.clip(np.searchsorted(starts, frac * FRAME_DT + 1e-9, side="right") - 1, 0, None)]
-        gains = np.asarray(k["gains"], dtype=float)
+        return {
+            "qpos_ref": qpos_ref,
+            "q_ref": qpos_mj_to_pin(qpos_ref),
+            "v_ref": _interp(qvel_mj_to_pin(tr.qpos, tr.qvel), frac),
+            "tau_ref": tr.joint_torque[np.clip(np.floor(frac + 1e-9).astype(int), 0, tr.num_frames - 1)],
+            "node": running[np.clip(np.searchsorted(starts, frac * FRAME_DT + 1e-9, side="right") - 1, 0, None)],
+            "gains": np.asarray(k["gains"], dtype=float),
+        }
+
+    def feedback_states(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The feedback replay's robot qpos and sensors after each physics step, until the fall."""
+        ref = self.feedback_references()
+        if ref is None:
+            return None
+        tr, cfg, pm = self.traj, self.robot.config, self.robot.pin_model
+        qpos_ref, q_ref, v_ref, tau_ref, node, gains = (
+            ref[key] for key in ("qpos_ref", "q_ref", "v_ref", "tau_ref", "node", "gains")
+        )
+        nstep = len(qpos_ref)
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
         d.qpos[: self.nq], d.qvel[: self.nv] = tr.qpos[0], tr.qvel[0]
         qpos = np.empty((nstep, self.nq))
         sensors = np.empty((nstep, m.nsensordata))
         kp, kd = cfg.kp, cfg.kd
+        # The loop below is the law of the docstring, written for speed (it is most of a walk's
+        # validation): views of MjData taken once, the state conversions (`qpos_mj_to_pin`,
+        # `qvel_mj_to_pin`) inlined on preallocated arrays with the rotation in Python floats, the
+        # state-independent products computed for all steps at once. Every operation is the one
+        # the conversions do, in the same order, so the controls are bitwise those of the plain
+        # form (tests/test_data_validate.py compares them).
+        nq, nv = self.nq, self.nv
+        qpos_now, qvel_now, ctrl, sensordata = d.qpos[:nq], d.qvel[:nv], d.ctrl, d.sensordata
+        lin_now, rest_now, joints_vel = qvel_now[:3], qvel_now[3:], qvel_now[6:]
+        q = np.empty(nq)
+        dx = np.empty(2 * nv)
+        dx_lin, dx_rest = dx[nv : nv + 3], dx[nv + 3 :]
+        v_ref_lin, v_ref_rest = v_ref[:, :3], v_ref[:, 3:]
+        pd = self.settings.feedback_pd
+        kd_v_ref = kd * v_ref[:, 6:] if pd else None
+        target_ref = qpos_ref[:, 7:]
+        step = mujoco.mj_step
+        difference = pin.difference
+        losses = self._joint_losses
         for i in range(nstep):
-            qpos_now, qvel_now = d.qpos[: self.nq], d.qvel[: self.nv]
-            q = qpos_mj_to_pin(qpos_now)
-            dx = np.concatenate([pin.difference(pm, q_ref[i], q), qvel_mj_to_pin(qpos_now, qvel_now) - v_ref[i]])
-            u = tau_ref[i] - gains[node[i]] @ dx + self._joint_losses(qvel_now[6:])
-            if self.settings.feedback_pd:
-                d.ctrl[:] = qpos_ref[i, 7:] + (u + kd * v_ref[i, 6:]) / kp
+            q[:3] = qpos_now[:3]
+            q[3:6] = qpos_now[4:7]
+            q[6] = qpos_now[3]
+            q[7:] = qpos_now[7:]
+            dx[:nv] = difference(pm, q_ref[i], q)
+            w, x, y, z = qpos_now[3:7].tolist()
+            a, b, c = lin_now.tolist()
+            dx_lin[0] = (1 - 2 * (y * y + z * z)) * a + (2 * (x * y + w * z)) * b + (2 * (x * z - w * y)) * c
+            dx_lin[1] = (2 * (x * y - w * z)) * a + (1 - 2 * (x * x + z * z)) * b + (2 * (y * z + w * x)) * c
+            dx_lin[2] = (2 * (x * z + w * y)) * a + (2 * (y * z - w * x)) * b + (1 - 2 * (x * x + y * y)) * c
+            dx_lin -= v_ref_lin[i]
+            np.subtract(rest_now, v_ref_rest[i], out=dx_rest)
+            u = tau_ref[i] - gains[node[i]] @ dx + losses(joints_vel)
+            if pd:
+                ctrl[:] = target_ref[i] + (u + kd_v_ref[i]) / kp
             else:
-                d.ctrl[:] = qpos_now[7:] + (u + kd * qvel_now[6:]) / kp
-            mujoco.mj_step(m, d)
-            qpos[i], sensors[i] = d.qpos[: self.nq], d.sensordata
-            if i % 50 == 0 and self._fallen(qpos_ref[min(i + 1, nstep - 1)], d.qpos[: self.nq]):
+                ctrl[:] = qpos_now[7:] + (u + kd * joints_vel) / kp
+            step(m, d)
+            qpos[i] = qpos_now
+            sensors[i] = sensordata
+            if i % 50 == 0 and self._fallen(qpos_ref[min(i + 1, nstep - 1)], qpos_now):
                 nstep = i + 1
                 break
-        return self._measure(0, nstep, qpos[:nstep], sensors[:nstep])
+        return qpos[:nstep], sensors[:nstep]
 
     def _fallen(self, qpos_ref: np.ndarray, qpos: np.ndarray) -> bool:
         s = self.settings
