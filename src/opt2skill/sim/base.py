@@ -17,7 +17,7 @@ import numpy as np
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.scene.terrain import Terrain
-from opt2skill.sim.params import WorldParams
+from opt2skill.sim.params import NominalModel, WorldParams
 
 
 @dataclass(frozen=True)
@@ -154,6 +154,17 @@ class BatchedSim(ABC):
     def terrain_height(self, xy: np.ndarray) -> np.ndarray:
         """Terrain surface height (N, k) under points xy (N, k, 2), each world on its own terrain."""
 
+    def check_worlds(self, worlds) -> np.ndarray:
+        """World indices from an index array or a boolean mask; ConfigError if out of range or repeated."""
+        worlds = np.atleast_1d(np.asarray(worlds))
+        if worlds.dtype == bool:
+            worlds = np.flatnonzero(worlds)
+        if worlds.ndim != 1 or not np.issubdtype(worlds.dtype, np.integer):
+            raise ConfigError("worlds must be a 1-D array of world indices or a boolean mask")
+        if worlds.size and (worlds.min() < 0 or worlds.max() >= self.nworld or len(np.unique(worlds)) != len(worlds)):
+            raise ConfigError(f"world indices must be distinct and in [0, {self.nworld - 1}]")
+        return worlds
+
     def close(self) -> None:
         """Release threads and memory."""
 
@@ -162,3 +173,51 @@ class BatchedSim(ABC):
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class HostBookkeeping(BatchedSim):
+    """What both backends keep on the host: the physics step, each world's parameters and z offset,
+    the nominal model (gains), and the checks of reset and step inputs."""
+
+    _dt: float
+    _params: WorldParams
+    _z_offset: np.ndarray
+    _nominal: NominalModel
+
+    @property
+    def physics_dt(self) -> float:
+        return self._dt
+
+    @property
+    def params(self) -> WorldParams:
+        return self._params.rows(np.arange(self.nworld))
+
+    @property
+    def z_offset(self) -> np.ndarray:
+        return self._z_offset.copy()
+
+    def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self._nominal.gains(self._params)
+
+    def checked_reset(self, worlds, qpos, qvel, targets, nq: int, nv: int):
+        """(worlds, qpos (k, nq), qvel (k, nv), targets (k, nu) or None), checked."""
+        worlds = self.check_worlds(worlds)
+        k = len(worlds)
+        qpos, qvel = checked_array("qpos", qpos, (k, nq)), checked_array("qvel", qvel, (k, nv))
+        return worlds, qpos, qvel, None if targets is None else checked_array("targets", targets, (k, self.nu))
+
+    def checked_targets(self, targets) -> np.ndarray:
+        targets = np.asarray(targets, dtype=float)
+        if targets.shape != (self.nworld, self.nu):
+            raise ConfigError(f"targets must have shape {(self.nworld, self.nu)}, got {targets.shape}")
+        return targets
+
+
+def checked_array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
+    """`value` as a float array of `shape`; ConfigError if the shape differs or a value is not finite."""
+    value = np.asarray(value, dtype=float)
+    if value.shape != shape:
+        raise ConfigError(f"{name} must have shape {shape}, got {value.shape}")
+    if not np.all(np.isfinite(value)):
+        raise ConfigError(f"{name} contains non-finite values")
+    return value

@@ -23,7 +23,7 @@ from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.scene.ground import TerrainScene
 from opt2skill.scene.terrain import Flat, Terrain
-from opt2skill.sim.base import BatchedSim, SimConfig, SimStep
+from opt2skill.sim.base import HostBookkeeping, SimConfig, SimStep, checked_array
 from opt2skill.sim.delay import ActionDelay
 from opt2skill.sim.outputs import OutputDecoder
 from opt2skill.sim.params import NominalModel, WorldParams
@@ -32,7 +32,7 @@ FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
 CTRL = mujoco.mjtState.mjSTATE_CTRL.value
 
 
-class MujocoBatchedSim(BatchedSim):
+class MujocoBatchedSim(HostBookkeeping):
     """Batched C MuJoCo. All worlds start at the robot's stand pose on terrain 0 with nominal parameters."""
 
     def __init__(
@@ -87,24 +87,12 @@ class MujocoBatchedSim(BatchedSim):
     # ---------------------------------------------------------------- interface
 
     @property
-    def physics_dt(self) -> float:
-        return self._dt
-
-    @property
-    def params(self) -> WorldParams:
-        return self._params.rows(np.arange(self.nworld))
-
-    @property
-    def z_offset(self) -> np.ndarray:
-        return self._z_offset.copy()
-
-    @property
     def state(self) -> np.ndarray:
         """(N, nstate) full physics state of every world (mjSTATE_FULLPHYSICS layout), a copy."""
         return self._state.copy()
 
     def set_params(self, worlds: np.ndarray, params: WorldParams) -> None:
-        worlds = self._check_worlds(worlds)
+        worlds = self.check_worlds(worlds)
         m = self.models[0]
         p = params.checked(len(worlds), m.nbody, m.nu, self.config.max_delay, len(self.terrains))
         for row, w in enumerate(worlds):  # per reset, never per step
@@ -123,12 +111,9 @@ class MujocoBatchedSim(BatchedSim):
         targets: np.ndarray | None = None,
         params: WorldParams | None = None,
     ) -> SimStep:
-        worlds = self._check_worlds(worlds)
-        k, m = len(worlds), self.models[0]
-        qpos = _checked_array("qpos", qpos, (k, m.nq))
-        qvel = _checked_array("qvel", qvel, (k, m.nv))
-        if targets is not None:
-            targets = _checked_array("targets", targets, (k, m.nu))
+        m = self.models[0]
+        worlds, qpos, qvel, targets = self.checked_reset(worlds, qpos, qvel, targets, m.nq, m.nv)
+        k = len(worlds)
         if params is not None:
             self.set_params(worlds, params)
         d = self._scratch
@@ -155,9 +140,7 @@ class MujocoBatchedSim(BatchedSim):
         return out
 
     def step(self, targets: np.ndarray) -> SimStep:
-        targets = np.asarray(targets, dtype=float)
-        if targets.shape != (self.nworld, self.models[0].nu):
-            raise ConfigError(f"targets must have shape {(self.nworld, self.models[0].nu)}, got {targets.shape}")
+        targets = self.checked_targets(targets)
         start = self._state.copy()
         control = self._delay.sequence(targets)
         self._pool.rollout(
@@ -178,13 +161,10 @@ class MujocoBatchedSim(BatchedSim):
         return out
 
     def push(self, worlds: np.ndarray, velocity: np.ndarray) -> None:
-        worlds = self._check_worlds(worlds)
-        velocity = _checked_array("push velocity", velocity, (len(worlds), 3))
+        worlds = self.check_worlds(worlds)
+        velocity = checked_array("push velocity", velocity, (len(worlds), 3))
         start = self._qvel.start  # the free joint's linear velocity is in the world frame
         self._state[worlds, start:start + 3] += velocity
-
-    def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return self._nominal.gains(self._params)
 
     def terrain_height(self, xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, dtype=float)
@@ -235,22 +215,3 @@ class MujocoBatchedSim(BatchedSim):
         heights = terrain.max_height(corners[..., :2].min(axis=1), corners[..., :2].max(axis=1))
         lowest = corners[..., 2].min(axis=1)
         return float(max((heights - lowest).max(), heights.min()))
-
-    def _check_worlds(self, worlds) -> np.ndarray:
-        worlds = np.atleast_1d(np.asarray(worlds))
-        if worlds.dtype == bool:
-            worlds = np.flatnonzero(worlds)
-        if worlds.ndim != 1 or not np.issubdtype(worlds.dtype, np.integer):
-            raise ConfigError("worlds must be a 1-D array of world indices or a boolean mask")
-        if worlds.size and (worlds.min() < 0 or worlds.max() >= self.nworld or len(np.unique(worlds)) != len(worlds)):
-            raise ConfigError(f"world indices must be distinct and in [0, {self.nworld - 1}]")
-        return worlds
-
-
-def _checked_array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
-    value = np.asarray(value, dtype=float)
-    if value.shape != shape:
-        raise ConfigError(f"{name} must have shape {shape}, got {value.shape}")
-    if not np.all(np.isfinite(value)):
-        raise ConfigError(f"{name} contains non-finite values")
-    return value

@@ -1,0 +1,61 @@
+"""Which physics backend a device name selects, and one clear error when it cannot run here.
+
+`cpu`: C MuJoCo (`MujocoBatchedSim`). `cuda` (or `cuda:K`): MuJoCo Warp on that GPU
+(`WarpBatchedSim`, the optional extra `pip install 'opt2skill[gpu]'`). `warp-cpu`: MuJoCo Warp on
+Warp's CPU device, for tests and smoke runs only (a few hundred physics steps/s).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from opt2skill.errors import ConfigError
+from opt2skill.model.robot import Robot
+from opt2skill.scene.terrain import Flat, Terrain
+from opt2skill.sim.base import BatchedSim, SimConfig
+
+DEVICES = ("cpu", "cuda", "warp-cpu")
+INSTALL = "pip install 'opt2skill[gpu]' (mujoco-warp and warp-lang, docs/training.md)"
+
+
+def import_warp():
+    """(warp, mujoco_warp), or ConfigError naming the install step."""
+    try:
+        import warp
+        import mujoco_warp
+    except ImportError as exc:
+        raise ConfigError(f"the GPU physics backend needs MuJoCo Warp ({exc.name} is not installed): {INSTALL}") from None
+    warp.config.quiet = True
+    return warp, mujoco_warp
+
+
+def check_device(device: str) -> None:
+    """ConfigError unless `device` names a backend that can run on this machine."""
+    name = str(device)
+    if name == "cpu":
+        return
+    if name != "warp-cpu" and name != "cuda" and not (name.startswith("cuda:") and name[5:].isdigit()):
+        raise ConfigError(f"--device must be cpu, cuda, cuda:K or warp-cpu, got '{device}'")
+    wp, _ = import_warp()
+    if name == "warp-cpu":
+        return
+    count = wp.get_cuda_device_count()
+    index = int(name[5:]) if ":" in name else 0
+    if count == 0:
+        raise ConfigError("--device cuda needs an NVIDIA GPU with a working CUDA driver, and Warp finds none on "
+                          "this machine; train with --device cpu")
+    if index >= count:
+        raise ConfigError(f"--device {name}: this machine has {count} CUDA device(s), cuda:0 to cuda:{count - 1}")
+
+
+def make_sim(robot: Robot, nworld: int, config: SimConfig, terrains: Sequence[Terrain] = (Flat(),),
+             device: str = "cpu") -> BatchedSim:
+    """The batched simulator of `device` (see the module docstring)."""
+    check_device(device)
+    if device == "cpu":
+        from opt2skill.sim.mujoco_sim import MujocoBatchedSim
+
+        return MujocoBatchedSim(robot, nworld, config, terrains=terrains)
+    from opt2skill.sim.warp_sim import WarpBatchedSim
+
+    return WarpBatchedSim(robot, nworld, config, terrains=terrains, device="cpu" if device == "warp-cpu" else device)

@@ -1,0 +1,118 @@
+"""The MuJoCo Warp backend, on Warp's CPU device, steps Digit like the C backend: same model, same state,
+same PD targets, contacts with the floor, one world with randomized parameters and an action delay.
+The tracking environment on either backend gives the same observations and rewards.
+
+MuJoCo Warp computes in float32, the C backend in float64: the tolerances below are about 50 times
+the differences measured over these horizons (docs/sim.md, "MuJoCo Warp backend"). The first run
+on a machine compiles MuJoCo Warp's kernels (about 2.5 min on 2 busy cores, cached after that).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("warp", reason="MuJoCo Warp backend not installed (pip install 'opt2skill[gpu]')")
+pytest.importorskip("mujoco_warp", reason="MuJoCo Warp backend not installed (pip install 'opt2skill[gpu]')")
+
+from envs_support import ROBOT, exact_config, recorded_reference  # noqa: E402
+
+from opt2skill.envs import ReferenceBank, TrackingEnv  # noqa: E402
+from opt2skill.errors import ConfigError  # noqa: E402
+from opt2skill.model.standing import feedforward_ctrl  # noqa: E402
+from opt2skill.model.statics import gravity_compensation  # noqa: E402
+from opt2skill.sim import MujocoBatchedSim, SimConfig, WorldParams, sample_uniform  # noqa: E402
+from opt2skill.sim.devices import check_device, make_sim  # noqa: E402
+from opt2skill.sim.warp_sim import WarpBatchedSim  # noqa: E402
+
+pytestmark = pytest.mark.slow  # the first run compiles MuJoCo Warp's kernels
+
+NWORLD, NSTEP = 3, 20  # 20 policy steps = 100 physics steps of 1 ms
+CONFIG = SimConfig(nsubstep=5, nthread=1)
+TABLE_II = {"mass_scale": (0.9, 1.1), "friction_scale": (0.3, 1.0), "gravity_scale": (0.9, 1.1),
+            "kp_factor": (0.9, 1.1), "kd_factor": (0.9, 1.1), "motor_strength": (0.95, 1.05)}
+# Largest difference allowed between the backends, per output; measured differences in docs/sim.md.
+TOLERANCE = {"qpos": 5e-5, "qvel": 5e-3, "ee_pos": 5e-5, "imu_acc": 2e-2, "torque": 5e-2, "torque_mean": 5e-2,
+             "contact_wrench_mean": 1.0, "joint_acc": 1.0}
+
+
+def world_params(sim) -> WorldParams:
+    """Nominal worlds, and the last one with every Table II parameter randomized and a 4 ms delay."""
+    p = WorldParams.nominal(NWORLD, sim.nbody, sim.nu)
+    p.assign(np.array([NWORLD - 1]), sample_uniform(np.random.default_rng(1), 1, sim.nbody, sim.nu, TABLE_II))
+    p.delay[NWORLD - 1] = 4 * sim.physics_dt
+    return p
+
+
+@pytest.fixture(scope="module")
+def both():
+    """The same start, parameters and targets on both backends: their outputs, step by step."""
+    rng = np.random.default_rng(0)
+    stand = feedforward_ctrl(ROBOT, ROBOT.stand_qpos, gravity_compensation(ROBOT, ROBOT.stand_qpos).torque)
+    qpos = np.tile(ROBOT.stand_qpos, (NWORLD, 1))
+    qpos[:, 7:] += rng.normal(0, 0.02, (NWORLD, ROBOT.nu))
+    qvel = rng.normal(0, 0.1, (NWORLD, ROBOT.nv))
+    targets = stand + rng.normal(0, 0.1, (NSTEP, NWORLD, ROBOT.nu))
+    outs = {}
+    for name, sim in (("c", MujocoBatchedSim(ROBOT, NWORLD, CONFIG)),
+                      ("warp", WarpBatchedSim(ROBOT, NWORLD, CONFIG, device="cpu"))):
+        with sim:
+            first = sim.reset(np.arange(NWORLD), qpos, qvel, params=world_params(sim))
+            outs[name] = [first] + [sim.step(t) for t in targets]
+            outs[name + "_gains"] = sim.gains()
+    return outs
+
+
+@pytest.mark.parametrize("field", sorted(TOLERANCE))
+def test_warp_steps_like_c_mujoco_with_contacts_and_randomized_parameters(both, field):
+    c, w = both["c"], both["warp"]
+    touching = np.array([o.contact_found > 0 for o in c[1:]])  # (steps, worlds, feet)
+    assert touching.mean() > 0.8 and not touching.all(), "feet on the floor, making and breaking contacts"
+    diff = max(np.abs(getattr(a, field) - getattr(b, field)).max() for a, b in zip(c, w))
+    assert diff <= TOLERANCE[field], f"{field}: backends differ by {diff:.3g}"
+
+
+def test_contact_counts_gains_and_stability_agree(both):
+    c, w = both["c"], both["warp"]
+    for a, b in zip(c, w):
+        np.testing.assert_array_equal(a.contact_found, b.contact_found)
+        assert not a.unstable.any() and not b.unstable.any()
+    for a, b in zip(both["c_gains"], both["warp_gains"]):
+        np.testing.assert_array_equal(a, b)
+    # the randomized world really differs from the nominal ones (it moved elsewhere on both backends)
+    assert np.abs(c[-1].qpos[2] - c[-1].qpos[0]).max() > 100 * TOLERANCE["qpos"]
+
+
+def test_tracking_env_reads_the_same_observations_and_rewards_on_both_backends():
+    traj, targets = recorded_reference(steps=12)
+    config = exact_config()
+    results = {}
+    for name in ("c", "warp"):
+        bank = ReferenceBank.from_trajectories(ROBOT, [traj], config.observations.end_effectors)
+        sim = (MujocoBatchedSim(ROBOT, 1, CONFIG) if name == "c" else WarpBatchedSim(ROBOT, 1, CONFIG, device="cpu"))
+        with TrackingEnv(ROBOT, bank, config, 1, seed=0, sim=sim) as env:
+            env.reset_worlds(np.array([0]), np.array([0]), np.array([0]))
+            rows = [env.observations()]
+            for t in targets[:10]:
+                r = env.step(env.actions_for_targets(t[None]))
+                rows.append((r.actor, r.critic, r.reward, np.array([v[0] for v in r.terms.values()])))
+        results[name] = rows
+    for (a_actor, a_critic, *a_rest), (b_actor, b_critic, *b_rest) in zip(results["c"], results["warp"]):
+        np.testing.assert_allclose(a_actor, b_actor, rtol=0, atol=2e-3)
+        np.testing.assert_allclose(a_critic, b_critic, rtol=0, atol=0.1)
+        for x, y in zip(a_rest, b_rest):
+            np.testing.assert_allclose(x, y, rtol=0, atol=2e-3)
+
+
+def test_device_names_are_checked_with_one_clear_error():
+    with pytest.raises(ConfigError, match="--device must be"):
+        check_device("tpu")
+    import warp
+
+    if warp.get_cuda_device_count() == 0:
+        with pytest.raises(ConfigError, match="needs an NVIDIA GPU"):
+            make_sim(ROBOT, 2, CONFIG, device="cuda")
+    with pytest.raises(ConfigError, match="flat terrains only"):
+        from opt2skill.sim import TerrainGrid, rough
+
+        WarpBatchedSim(ROBOT, 1, CONFIG, terrains=[rough(TerrainGrid(), 0.03, seed=0)], device="cpu")
