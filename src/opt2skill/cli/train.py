@@ -58,6 +58,8 @@ def train(
                                   "in RUN/best (what eval and export take by default)."),
     judge_every: int = typer.Option(50, "--judge-every", help="Iterations between held-out judgements."),
     judge_n: int = typer.Option(10, "--judge-n", help="Held-out references per judgement."),
+    device: str = typer.Option("cpu", "--device", help="Physics backend: cpu (C MuJoCo on every core) or cuda "
+                               "(MuJoCo Warp on the GPU; pip install 'opt2skill[gpu]', docs/training.md)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Train a tracking policy on a dataset (PPO, rsl_rl); checkpoints, TensorBoard logs, resume."""
@@ -74,7 +76,7 @@ def train(
     request = TrainRequest(dataset=dataset, out=out, steps=steps, num_envs=num_envs, history=history,
                            ablation=ablation, seed=seed, threads=threads, checkpoint_every=checkpoint_every,
                            command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out, kp_scale=kp_scale,
-                           judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed))
+                           judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed), device=device)
     request.check()
     _terminate_as_interrupt()
     if init == "distill":

@@ -24,7 +24,8 @@ from opt2skill.envs.rewards import StepContext, penalty_values, reward_terms, ta
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.model.sensors import SensorLayout, contact_wrenches
-from opt2skill.sim import BatchedSim, Flat, MujocoBatchedSim, SimConfig, SimStep
+from opt2skill.sim import BatchedSim, Flat, SimConfig, SimStep
+from opt2skill.sim.devices import make_sim
 
 CAUSES = ("time_out", "fall", "height_error", "orientation_error", "xy_error", "unstable")
 
@@ -59,7 +60,7 @@ class TrackingEnv:
     """N worlds tracking references of `bank`. All randomness comes from `seed`."""
 
     def __init__(self, robot: Robot, bank: ReferenceBank, config: TrackingConfig, num_envs: int, seed: int = 0,
-                 sim: BatchedSim | None = None, threads: int | None = None):
+                 sim: BatchedSim | None = None, threads: int | None = None, device: str = "cpu"):
         config.check()
         check_reference_inputs(config.ablation, bank.has_dynamics, bank.source)
         if not (isinstance(num_envs, (int, np.integer)) and num_envs >= 1):
@@ -70,8 +71,8 @@ class TrackingEnv:
         grounds, ground = bank.grounds()
         if sim is None:  # every reference's own ground, then the randomized variants (envs/randomization.py)
             self.terrains = randomization.terrains(config.randomization, grounds, bank.xy_range, seed)
-            self.sim = MujocoBatchedSim(robot, self.num_envs, SimConfig(nsubstep=5, nthread=threads),
-                                        terrains=self.terrains)
+            self.sim = make_sim(robot, self.num_envs, SimConfig(nsubstep=5, nthread=threads), self.terrains,
+                                device=device)  # cpu: C MuJoCo; cuda: MuJoCo Warp (docs/sim.md)
             self._ground = ground  # (trajectories,) index of each reference's ground in `terrains`
             self._variants = list(range(len(grounds), len(self.terrains)))
         else:  # the caller's terrains (e.g. a terrain sweep) replace the references' flat floor

@@ -110,7 +110,8 @@ def distill_stage(request: TrainRequest, dataset, robot, config, distill: Distil
         return done, done["iteration"]  # finished before (killed before the PPO stage's first checkpoint)
     env_config = distillation_tracking_config(config, distill)
     bank = ReferenceBank.from_dataset(robot, dataset, env_config.observations.end_effectors)
-    with TrackingEnv(robot, bank, env_config, request.num_envs, seed=request.seed, threads=threads) as env:
+    with TrackingEnv(robot, bank, env_config, request.num_envs, seed=request.seed, threads=threads,
+                     device=request.device) as env:
         torch.manual_seed(request.seed)
         actor = build_actor(distill.student_ppo(), env.actor_dim, env.critic_dim, env.nu)
         expert = dataset_expert(env, dataset, distill)
@@ -223,7 +224,8 @@ def _ppo_stage(request: TrainRequest, dataset, robot, config, distill: DistillCo
     offset = checkpoint.load(checkpoint.latest(Path(request.out) / STAGE_DIR))["env_steps"] if distilled is None \
         else distilled["env_steps"]
     bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
-    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
+    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads,
+                     device=request.device) as env:
         trainer = finetune_trainer(env, dataset, distill, request.out, request.seed)
         trainer.judge = judge
         if trainer.resume_latest():

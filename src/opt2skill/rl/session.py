@@ -28,6 +28,7 @@ from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.policy import Policy, load_policy
 from opt2skill.rl.run import RunSpec, check_run, open_run, trim_progress
 from opt2skill.rl.trainer import Schedule, Trainer
+from opt2skill.sim.devices import check_device
 
 MAX_ENVS = 4096
 
@@ -47,6 +48,7 @@ class TrainRequest:
     kp_scale: float = 1.0  # servo stiffness for this policy (envs.config.ActionConfig.kp_scale)
     held_out: Path | None = None  # references of another seed: judge the actor on them, keep the best (rl.best)
     judge: JudgeConfig = JudgeConfig()
+    device: str = "cpu"  # physics backend: cpu (C MuJoCo) or cuda (MuJoCo Warp), opt2skill.sim.devices
 
     def check(self) -> None:
         if not (isinstance(self.steps, int) and self.steps >= 1):
@@ -66,6 +68,7 @@ class TrainRequest:
         if self.checkpoint_every < 1:
             raise ConfigError(f"--checkpoint-every must be >= 1 iteration, got {self.checkpoint_every}")
         self.judge.check()
+        check_device(self.device)  # e.g. --device cuda without a GPU: one error before anything is written
 
 
 def open_dataset(path: Path):
@@ -156,7 +159,8 @@ def _train_ppo(request: TrainRequest, robot, bank, config, ppo: PPOConfig, exist
     from torch.utils.tensorboard import SummaryWriter
 
     threads = set_threads(request.threads)
-    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads) as env:
+    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads,
+                     device=request.device) as env:
         trainer = Trainer(env, ppo, request.out, seed=request.seed)
         trainer.judge = judge
         if existed and trainer.resume_latest():

@@ -25,7 +25,8 @@ def import_warp():
         import mujoco_warp
     except ImportError as exc:
         raise ConfigError(f"the GPU physics backend needs MuJoCo Warp ({exc.name} is not installed): {INSTALL}") from None
-    warp.config.quiet = True
+    warp.config.quiet = True  # no banner, no per-module compile lines
+    warp.config.log_level = getattr(warp, "LOG_WARNING", 30)
     return warp, mujoco_warp
 
 
