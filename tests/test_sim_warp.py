@@ -21,13 +21,16 @@ from opt2skill.envs import ReferenceBank, TrackingEnv  # noqa: E402
 from opt2skill.errors import ConfigError  # noqa: E402
 from opt2skill.model.standing import feedforward_ctrl  # noqa: E402
 from opt2skill.model.statics import gravity_compensation  # noqa: E402
-from opt2skill.sim import MujocoBatchedSim, SimConfig, WorldParams, sample_uniform  # noqa: E402
+from opt2skill.sim import MujocoBatchedSim, SimConfig, Stairs, TerrainGrid, WorldParams, flat, rough  # noqa: E402
+from opt2skill.sim import sample_uniform  # noqa: E402
 from opt2skill.sim.devices import check_device, make_sim  # noqa: E402
 from opt2skill.sim.warp_sim import WarpBatchedSim  # noqa: E402
 
 pytestmark = pytest.mark.slow  # the first run compiles MuJoCo Warp's kernels
 
-NWORLD, NSTEP = 3, 20  # 20 policy steps = 100 physics steps of 1 ms
+NWORLD, NSTEP = 4, 20  # 20 policy steps = 100 physics steps of 1 ms
+FLAT, ROUGH = np.array([0, 1]), np.array([2, 3])  # worlds on the floor, on rough ground
+RANDOMIZED = np.array([1, 3])
 CONFIG = SimConfig(nsubstep=5, nthread=1)
 TABLE_II = {"mass_scale": (0.9, 1.1), "friction_scale": (0.3, 1.0), "gravity_scale": (0.9, 1.1),
             "kp_factor": (0.9, 1.1), "kd_factor": (0.9, 1.1), "motor_strength": (0.95, 1.05)}
@@ -36,11 +39,17 @@ TOLERANCE = {"qpos": 5e-5, "qvel": 5e-3, "ee_pos": 5e-5, "imu_acc": 2e-2, "torqu
              "contact_wrench_mean": 1.0, "joint_acc": 1.0}
 
 
+GRID = TerrainGrid(x_range=(-2.0, 2.0), y_range=(-2.0, 2.0))
+TERRAINS = [flat(), rough(GRID, 0.03, seed=3), rough(GRID, 0.03, seed=4)]
+
+
 def world_params(sim) -> WorldParams:
-    """Nominal worlds, and the last one with every Table II parameter randomized and a 4 ms delay."""
+    """Worlds 0 and 1 on the floor, 2 and 3 on two different rough grounds (lifted onto them); 1 and 3
+    with every Table II parameter randomized and a 4 ms action delay."""
     p = WorldParams.nominal(NWORLD, sim.nbody, sim.nu)
-    p.assign(np.array([NWORLD - 1]), sample_uniform(np.random.default_rng(1), 1, sim.nbody, sim.nu, TABLE_II))
-    p.delay[NWORLD - 1] = 4 * sim.physics_dt
+    p.assign(RANDOMIZED, sample_uniform(np.random.default_rng(1), 2, sim.nbody, sim.nu, TABLE_II))
+    p.delay[RANDOMIZED] = 4 * sim.physics_dt
+    p.terrain[:] = [0, 0, 1, 2]
     return p
 
 
@@ -54,33 +63,50 @@ def both():
     qvel = rng.normal(0, 0.1, (NWORLD, ROBOT.nv))
     targets = stand + rng.normal(0, 0.1, (NSTEP, NWORLD, ROBOT.nu))
     outs = {}
-    for name, sim in (("c", MujocoBatchedSim(ROBOT, NWORLD, CONFIG)),
-                      ("warp", WarpBatchedSim(ROBOT, NWORLD, CONFIG, device="cpu"))):
+    for name, sim in (("c", MujocoBatchedSim(ROBOT, NWORLD, CONFIG, terrains=TERRAINS)),
+                      ("warp", WarpBatchedSim(ROBOT, NWORLD, CONFIG, terrains=TERRAINS, device="cpu"))):
         with sim:
             first = sim.reset(np.arange(NWORLD), qpos, qvel, params=world_params(sim))
             outs[name] = [first] + [sim.step(t) for t in targets]
             outs[name + "_gains"] = sim.gains()
+            outs[name + "_z"] = sim.z_offset
+            outs[name + "_ground"] = sim.terrain_height(first.qpos[:, None, :2])
     return outs
 
 
 @pytest.mark.parametrize("field", sorted(TOLERANCE))
-def test_warp_steps_like_c_mujoco_with_contacts_and_randomized_parameters(both, field):
+def test_warp_steps_like_c_mujoco_on_the_floor_with_randomized_parameters(both, field):
     c, w = both["c"], both["warp"]
-    touching = np.array([o.contact_found > 0 for o in c[1:]])  # (steps, worlds, feet)
+    touching = np.array([o.contact_found[FLAT] > 0 for o in c[1:]])  # (steps, worlds, feet)
     assert touching.mean() > 0.8 and not touching.all(), "feet on the floor, making and breaking contacts"
-    diff = max(np.abs(getattr(a, field) - getattr(b, field)).max() for a, b in zip(c, w))
+    diff = max(np.abs(getattr(a, field)[FLAT] - getattr(b, field)[FLAT]).max() for a, b in zip(c, w))
     assert diff <= TOLERANCE[field], f"{field}: backends differ by {diff:.3g}"
 
 
 def test_contact_counts_gains_and_stability_agree(both):
     c, w = both["c"], both["warp"]
     for a, b in zip(c, w):
-        np.testing.assert_array_equal(a.contact_found, b.contact_found)
+        np.testing.assert_array_equal(a.contact_found[FLAT], b.contact_found[FLAT])
         assert not a.unstable.any() and not b.unstable.any()
     for a, b in zip(both["c_gains"], both["warp_gains"]):
         np.testing.assert_array_equal(a, b)
-    # the randomized world really differs from the nominal ones (it moved elsewhere on both backends)
-    assert np.abs(c[-1].qpos[2] - c[-1].qpos[0]).max() > 100 * TOLERANCE["qpos"]
+    # the randomized world really differs from the nominal one (it moved elsewhere on both backends)
+    assert np.abs(c[-1].qpos[1] - c[-1].qpos[0]).max() > 100 * TOLERANCE["qpos"]
+
+
+def test_rough_worlds_stand_on_their_own_heightfield(both):
+    """Lifted alike onto their own heightfield, they land and stand on it on both backends. MuJoCo
+    Warp's heightfield collision makes other contact sets than C MuJoCo's (e.g. 2 points under a
+    foot instead of 3), so after a touchdown the states part: measured up to 3.5 cm in 100 ms."""
+    c, w = both["c"], both["warp"]
+    assert both["c_z"][FLAT].max() == 0 and both["c_z"][ROUGH].min() > 0.005
+    np.testing.assert_allclose(both["warp_z"], both["c_z"], rtol=0, atol=1e-6)  # float32 sole corners
+    np.testing.assert_array_equal(both["warp_ground"], both["c_ground"])
+    for out in (c, w):
+        assert all((o.contact_found[ROUGH].sum(axis=1) > 0).all() for o in out[-5:])  # on the ground ...
+        assert all(o.qpos[ROUGH, 2].min() > 0.9 for o in out)  # ... not through it
+    assert max(np.abs(a.qpos[ROUGH] - b.qpos[ROUGH]).max() for a, b in zip(c, w)) < 0.1
+    assert max(np.abs(a.qpos[ROUGH] - b.qpos[ROUGH]).max() for a, b in zip(c[:4], w[:4])) < 1e-3  # before touchdown
 
 
 def test_tracking_env_reads_the_same_observations_and_rewards_on_both_backends():
@@ -112,7 +138,5 @@ def test_device_names_are_checked_with_one_clear_error():
     if warp.get_cuda_device_count() == 0:
         with pytest.raises(ConfigError, match="needs an NVIDIA GPU"):
             make_sim(ROBOT, 2, CONFIG, device="cuda")
-    with pytest.raises(ConfigError, match="flat terrains only"):
-        from opt2skill.sim import TerrainGrid, rough
-
-        WarpBatchedSim(ROBOT, 1, CONFIG, terrains=[rough(TerrainGrid(), 0.03, seed=0)], device="cpu")
+    with pytest.raises(ConfigError, match="flat and rough terrains only"):
+        WarpBatchedSim(ROBOT, 1, CONFIG, terrains=[flat(), Stairs(0.1)], device="cpu")

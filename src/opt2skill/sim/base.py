@@ -199,6 +199,17 @@ class HostBookkeeping(BatchedSim):
     def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return self._nominal.gains(self._params)
 
+    def terrain_height(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.asarray(xy, dtype=float)
+        if xy.ndim != 3 or xy.shape[0] != self.nworld or xy.shape[2] != 2:
+            raise ConfigError(f"xy must have shape ({self.nworld}, k, 2), got {xy.shape}")
+        out = np.zeros(xy.shape[:2])
+        which = self._params.terrain
+        for index in np.unique(which):  # a loop over the few terrains, not the worlds
+            worlds = which == index
+            out[worlds] = self.terrains[index].height(xy[worlds])
+        return out
+
     def checked_reset(self, worlds, qpos, qvel, targets, nq: int, nv: int):
         """(worlds, qpos (k, nq), qvel (k, nv), targets (k, nu) or None), checked."""
         worlds = self.check_worlds(worlds)

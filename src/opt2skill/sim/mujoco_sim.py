@@ -166,17 +166,6 @@ class MujocoBatchedSim(HostBookkeeping):
         start = self._qvel.start  # the free joint's linear velocity is in the world frame
         self._state[worlds, start:start + 3] += velocity
 
-    def terrain_height(self, xy: np.ndarray) -> np.ndarray:
-        xy = np.asarray(xy, dtype=float)
-        if xy.ndim != 3 or xy.shape[0] != self.nworld or xy.shape[2] != 2:
-            raise ConfigError(f"xy must have shape ({self.nworld}, k, 2), got {xy.shape}")
-        out = np.zeros(xy.shape[:2])
-        which = self._params.terrain
-        for index in np.unique(which):  # a loop over the few terrains, not the worlds
-            worlds = which == index
-            out[worlds] = self.terrains[index].height(xy[worlds])
-        return out
-
     def close(self) -> None:
         if self._pool is not None and self._pool.rollout_ is not None:
             self._pool.close()

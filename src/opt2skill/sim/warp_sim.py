@@ -10,8 +10,11 @@ over worlds anywhere.
 Per-world parameters are batched model arrays (leading dimension N): body mass and inertia (with
 the derived subtree masses, inverse weights and actuator acc0 recomputed on the device by
 `mujoco_warp.set_const`), geom friction, gravity, and the servos' Kp, Kd and torque limits.
-MuJoCo Warp keeps collision bits and heightfield data per model, not per world, so this backend
-takes flat terrains only (docs/sim.md, "MuJoCo Warp backend").
+MuJoCo Warp keeps collision bits per model, not per world, but geom poses and the heightfield a
+geom shows are per world: each rough terrain gets its own heightfield asset, a rough world's
+heightfield geom points at its own, and the ground a world does not stand on is moved 1 km down
+(the floor under a rough world, the heightfield under a flat one). Stairs and slopes are not
+supported yet (docs/sim.md, "MuJoCo Warp backend").
 
 Physics runs in float32 (MuJoCo Warp's precision); outputs are float64 numpy arrays like the C
 backend's, and `device_arrays()` gives torch tensors that share the device memory.
@@ -22,12 +25,13 @@ from __future__ import annotations
 import warnings
 from collections.abc import Sequence
 
+import mujoco
 import numpy as np
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
-from opt2skill.scene.ground import TerrainScene
-from opt2skill.scene.terrain import Flat, Terrain
+from opt2skill.scene.ground import FLOOR, HFIELD, TerrainScene
+from opt2skill.scene.terrain import Flat, Rough, Terrain
 from opt2skill.sim.base import HostBookkeeping, SimConfig, SimStep, checked_array
 from opt2skill.sim.delay import ActionDelay
 from opt2skill.sim.devices import import_warp
@@ -39,7 +43,9 @@ wp, mjw = import_warp()
 # Model arrays given one row per world (put_model's batch_sizes). The last four are derived from
 # the masses and written by set_const.
 BATCHED = ("body_mass", "body_inertia", "geom_friction", "actuator_gainprm", "actuator_biasprm",
-           "actuator_forcerange", "body_subtreemass", "body_invweight0", "dof_invweight0", "actuator_acc0")
+           "actuator_forcerange", "geom_pos", "geom_dataid",
+           "body_subtreemass", "body_invweight0", "dof_invweight0", "actuator_acc0")
+AWAY = -1000.0  # m: where the ground a world does not stand on is moved
 
 
 @wp.kernel
@@ -75,9 +81,9 @@ class WarpBatchedSim(HostBookkeeping):
     ):
         if not (isinstance(nworld, (int, np.integer)) and nworld >= 1):
             raise ConfigError(f"number of worlds must be a positive integer, got {nworld}")
-        if not all(isinstance(t, Flat) for t in terrains) or not terrains:
-            raise ConfigError("the MuJoCo Warp backend takes flat terrains only (collision bits and heightfields "
-                              "are not per world in MuJoCo Warp); got " + ", ".join(t.name for t in terrains))
+        if not terrains or not all(isinstance(t, (Flat, Rough)) for t in terrains):
+            raise ConfigError("the MuJoCo Warp backend takes flat and rough terrains only (stairs and slopes need "
+                              "per-world collision bits); got " + ", ".join(t.name for t in terrains))
         self.robot, self.nworld = robot, int(nworld)
         self.config = config or SimConfig()
         self.device = wp.get_device(device)
@@ -85,8 +91,23 @@ class WarpBatchedSim(HostBookkeeping):
         self.terrains = self._scene.terrains
         spec = robot.mj_spec()
         self._scene.add_to(spec)
+        rough = [i for i, t in enumerate(self.terrains) if isinstance(t, Rough)]
+        for i in rough[1:]:  # the scene's own heightfield serves the first rough terrain
+            g = self._scene.grid
+            spec.add_hfield(name=f"{HFIELD}_{i}", nrow=g.nrow, ncol=g.ncol, size=spec.hfield(HFIELD).size,
+                            userdata=[0.0] * (g.nrow * g.ncol))
         base = robot.compile(spec)
         self._scene.bind(base)
+        self._floor = self._scene._ids[FLOOR]
+        self._hfield_geom = self._scene._ids.get(HFIELD, -1)
+        self._ground = [g for g in (self._floor, self._hfield_geom) if g >= 0]
+        self._hfield_of = np.zeros(len(self.terrains), dtype=int)  # terrain -> heightfield id
+        for n, i in enumerate(rough):
+            hid = mujoco.mj_name2id(base, mujoco.mjtObj.mjOBJ_HFIELD, HFIELD if n == 0 else f"{HFIELD}_{i}")
+            adr = base.hfield_adr[hid]
+            base.hfield_data[adr:adr + base.hfield_nrow[hid] * base.hfield_ncol[hid]] = self._scene._normalized[i]
+            self._hfield_of[i] = hid
+        self._corners = np.array([[robot.site_id(s) for s in foot.corner_sites] for foot in robot.config.feet])
         if self.config.physics_dt is not None:
             base.opt.timestep = self.config.physics_dt
         self.model = base  # the nominal host model (worlds differ only in the batched arrays)
@@ -103,10 +124,10 @@ class WarpBatchedSim(HostBookkeeping):
         self._use_graph = graph and self.device.is_cuda
         self._last: SimStep | None = None
 
-        import mujoco  # the host model only
-
         with wp.ScopedDevice(self.device):
             self.m = mjw.put_model(base, batch_sizes=dict.fromkeys(BATCHED, N))
+            self._geom_pos = np.tile(base.geom_pos, (N, 1, 1))
+            self._geom_dataid = np.tile(base.geom_dataid, (N, 1))
             self.m.opt.gravity = wp.array(self._gravity, dtype=wp.vec3)
             host = mujoco.MjData(base)
             self.d = mjw.put_data(base, host, nworld=N, nconmax=nconmax, njmax=njmax)
@@ -146,16 +167,23 @@ class WarpBatchedSim(HostBookkeeping):
         with wp.ScopedDevice(self.device):
             state = {name: getattr(d, name).numpy() for name in ("time", "qpos", "qvel", "ctrl", "qacc_warmstart")}
             state["time"][worlds] = 0.0
-            state["qpos"][worlds] = qpos  # flat terrains: nothing to lift, z_offset stays 0
+            state["qpos"][worlds] = qpos
             state["qvel"][worlds] = qvel
             state["ctrl"][worlds] = targets if targets is not None else qpos[:, 7:]
             state["qacc_warmstart"][worlds] = 0.0
             for name, value in state.items():
                 getattr(d, name).assign(value)
+            qpos = qpos.copy()
+            lift = self._lift_onto_terrain(worlds)
+            self._z_offset[worlds] = lift
+            if lift.any():
+                qpos[:, 2] += lift
+                state["qpos"][worlds, 2] = qpos[:, 2]
+                d.qpos.assign(state["qpos"])
             mjw.forward(self.m, d)  # every world: the others' state is unchanged, their readings unused
             sensors = d.sensordata.numpy()[worlds][:, None].astype(np.float64)
         self._delay.clear(worlds, targets)
-        out = self._decoder.decode(np.zeros(k), qpos.copy(), qvel.copy(), qvel, sensors, 0.0, self.policy_dt,
+        out = self._decoder.decode(np.zeros(k), qpos, qvel.copy(), qvel, sensors, 0.0, self.policy_dt,
                                    self._gravity[worlds])
         if self._last is not None:
             self._last.assign(worlds, out)
@@ -190,12 +218,6 @@ class WarpBatchedSim(HostBookkeeping):
             qvel[worlds, :3] += velocity  # the free joint's linear velocity is in the world frame
             self.d.qvel.assign(qvel)
 
-    def terrain_height(self, xy: np.ndarray) -> np.ndarray:
-        xy = np.asarray(xy, dtype=float)
-        if xy.ndim != 3 or xy.shape[0] != self.nworld or xy.shape[2] != 2:
-            raise ConfigError(f"xy must have shape ({self.nworld}, k, 2), got {xy.shape}")
-        return np.zeros(xy.shape[:2])  # flat terrains only
-
     def device_arrays(self) -> dict:
         """The device state as torch tensors sharing Warp's memory (no copies): time (N,), qpos (N, nq),
         qvel (N, nv), ctrl (N, nu), sensordata (N, S, nsensordata) of the last policy step."""
@@ -226,10 +248,41 @@ class WarpBatchedSim(HostBookkeeping):
             m.actuator_forcerange.assign(nom.forcerange[None] * strength[:, :, None])
             m.geom_friction.assign(nom.geom_friction[None] * p.friction_scale[:, None, None])
             m.opt.gravity.assign(self._gravity)
+            rough = np.array([isinstance(self.terrains[t], Rough) for t in p.terrain])
+            self._geom_pos[:, self._floor, 2] = np.where(rough, AWAY, self.model.geom_pos[self._floor, 2])
+            if self._hfield_geom >= 0:
+                self._geom_pos[:, self._hfield_geom, 2] = np.where(rough, self.model.geom_pos[self._hfield_geom, 2], AWAY)
+                self._geom_dataid[:, self._hfield_geom] = self._hfield_of[p.terrain]
+            m.geom_pos.assign(self._geom_pos)
+            m.geom_dataid.assign(self._geom_dataid)
+            # MuJoCo Warp computes the world poses of static geoms once, in put_data: move them there too
+            xpos = self.d.geom_xpos.numpy()
+            xpos[:, self._ground] = self._geom_pos[:, self._ground]
+            self.d.geom_xpos.assign(xpos)
             if mass_changed:
                 m.body_mass.assign(nom.body_mass[None] * mass)
                 m.body_inertia.assign(nom.body_inertia[None] * mass[:, :, None])
                 mjw.set_const(m, self.d)  # subtree masses, inverse weights, acc0 of every world
+
+    def _lift_onto_terrain(self, worlds: np.ndarray) -> np.ndarray:
+        """(k,) lift of each world, as the C backend's `_lift_onto_terrain`, from the sole corners of
+        the qpos just written (kinematics on the device, a loop over the terrains, not the worlds)."""
+        lift = np.zeros(len(worlds))
+        which = self._params.terrain[worlds]
+        needed = self._params.lift[worlds] & np.array([isinstance(self.terrains[t], Rough) for t in which], dtype=bool)
+        if not needed.any():
+            return lift
+        mjw.kinematics(self.m, self.d)
+        corners = self.d.site_xpos.numpy()[worlds][:, self._corners].astype(np.float64)  # (k, nfeet, 4, 3)
+        for index in np.unique(which[needed]):
+            rows = np.flatnonzero(needed & (which == index))
+            c = corners[rows]
+            nfeet = c.shape[1]
+            heights = self.terrains[index].max_height(c[..., :2].min(axis=2).reshape(-1, 2),
+                                                      c[..., :2].max(axis=2).reshape(-1, 2)).reshape(-1, nfeet)
+            lowest = c[..., 2].min(axis=2)
+            lift[rows] = np.maximum((heights - lowest).max(axis=1), heights.min(axis=1))
+        return lift
 
     def _substeps(self) -> None:
         d, N, nu, ns = self.d, self.nworld, self.nu, self._sensors.shape[2]
