@@ -10,11 +10,11 @@ over worlds anywhere.
 Per-world parameters are batched model arrays (leading dimension N): body mass and inertia (with
 the derived subtree masses, inverse weights and actuator acc0 recomputed on the device by
 `mujoco_warp.set_const`), geom friction, gravity, and the servos' Kp, Kd and torque limits.
-MuJoCo Warp keeps collision bits per model, not per world, but geom poses and the heightfield a
-geom shows are per world: each rough terrain gets its own heightfield asset, a rough world's
-heightfield geom points at its own, and the ground a world does not stand on is moved 1 km down
-(the floor under a rough world, the heightfield under a flat one). Stairs and slopes are not
-supported yet (docs/sim.md, "MuJoCo Warp backend").
+MuJoCo Warp keeps collision bits per model, not per world, but geom poses, sizes and the
+heightfield a geom shows are per world: each rough terrain gets its own heightfield asset, a
+world's ground geoms take the poses and sizes its terrain gives them (the scene's own `apply`, run
+once per terrain), and the ground geoms a world does not show are moved 1 km down
+(docs/sim.md, "MuJoCo Warp backend").
 
 Physics runs in float32 (MuJoCo Warp's precision); outputs are float64 numpy arrays like the C
 backend's, and `device_arrays()` gives torch tensors that share the device memory.
@@ -30,7 +30,7 @@ import numpy as np
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
-from opt2skill.scene.ground import FLOOR, HFIELD, TerrainScene
+from opt2skill.scene.ground import HFIELD, TerrainScene
 from opt2skill.scene.terrain import Flat, Rough, Terrain
 from opt2skill.sim.base import HostBookkeeping, SimConfig, SimStep, checked_array
 from opt2skill.sim.delay import ActionDelay
@@ -42,8 +42,9 @@ wp, mjw = import_warp()
 
 # Model arrays given one row per world (put_model's batch_sizes). The last four are derived from
 # the masses and written by set_const.
+GROUND_FIELDS = ("geom_pos", "geom_quat", "geom_size", "geom_aabb", "geom_rbound", "geom_dataid")
 BATCHED = ("body_mass", "body_inertia", "geom_friction", "actuator_gainprm", "actuator_biasprm",
-           "actuator_forcerange", "geom_pos", "geom_dataid",
+           "actuator_forcerange", *GROUND_FIELDS,
            "body_subtreemass", "body_invweight0", "dof_invweight0", "actuator_acc0")
 AWAY = -1000.0  # m: where the ground a world does not stand on is moved
 
@@ -81,9 +82,6 @@ class WarpBatchedSim(HostBookkeeping):
     ):
         if not (isinstance(nworld, (int, np.integer)) and nworld >= 1):
             raise ConfigError(f"number of worlds must be a positive integer, got {nworld}")
-        if not terrains or not all(isinstance(t, (Flat, Rough)) for t in terrains):
-            raise ConfigError("the MuJoCo Warp backend takes flat and rough terrains only (stairs and slopes need "
-                              "per-world collision bits); got " + ", ".join(t.name for t in terrains))
         self.robot, self.nworld = robot, int(nworld)
         self.config = config or SimConfig()
         self.device = wp.get_device(device)
@@ -91,6 +89,8 @@ class WarpBatchedSim(HostBookkeeping):
         self.terrains = self._scene.terrains
         spec = robot.mj_spec()
         self._scene.add_to(spec)
+        plain = robot.compile(spec)  # one heightfield, as the scene's `apply` expects
+        self._scene.bind(plain)
         rough = [i for i, t in enumerate(self.terrains) if isinstance(t, Rough)]
         for i in rough[1:]:  # the scene's own heightfield serves the first rough terrain
             g = self._scene.grid
@@ -98,15 +98,13 @@ class WarpBatchedSim(HostBookkeeping):
                             userdata=[0.0] * (g.nrow * g.ncol))
         base = robot.compile(spec)
         self._scene.bind(base)
-        self._floor = self._scene._ids[FLOOR]
-        self._hfield_geom = self._scene._ids.get(HFIELD, -1)
-        self._ground = [g for g in (self._floor, self._hfield_geom) if g >= 0]
-        self._hfield_of = np.zeros(len(self.terrains), dtype=int)  # terrain -> heightfield id
+        hfield_of = {}  # terrain -> heightfield id
         for n, i in enumerate(rough):
             hid = mujoco.mj_name2id(base, mujoco.mjtObj.mjOBJ_HFIELD, HFIELD if n == 0 else f"{HFIELD}_{i}")
             adr = base.hfield_adr[hid]
             base.hfield_data[adr:adr + base.hfield_nrow[hid] * base.hfield_ncol[hid]] = self._scene._normalized[i]
-            self._hfield_of[i] = hid
+            hfield_of[i] = hid
+        self._ground, self._ground_table = self._ground_tables(plain, hfield_of)  # same geoms as `base`
         self._corners = np.array([[robot.site_id(s) for s in foot.corner_sites] for foot in robot.config.feet])
         if self.config.physics_dt is not None:
             base.opt.timestep = self.config.physics_dt
@@ -126,8 +124,6 @@ class WarpBatchedSim(HostBookkeeping):
 
         with wp.ScopedDevice(self.device):
             self.m = mjw.put_model(base, batch_sizes=dict.fromkeys(BATCHED, N))
-            self._geom_pos = np.tile(base.geom_pos, (N, 1, 1))
-            self._geom_dataid = np.tile(base.geom_dataid, (N, 1))
             self.m.opt.gravity = wp.array(self._gravity, dtype=wp.vec3)
             host = mujoco.MjData(base)
             self.d = mjw.put_data(base, host, nworld=N, nconmax=nconmax, njmax=njmax)
@@ -248,28 +244,49 @@ class WarpBatchedSim(HostBookkeeping):
             m.actuator_forcerange.assign(nom.forcerange[None] * strength[:, :, None])
             m.geom_friction.assign(nom.geom_friction[None] * p.friction_scale[:, None, None])
             m.opt.gravity.assign(self._gravity)
-            rough = np.array([isinstance(self.terrains[t], Rough) for t in p.terrain])
-            self._geom_pos[:, self._floor, 2] = np.where(rough, AWAY, self.model.geom_pos[self._floor, 2])
-            if self._hfield_geom >= 0:
-                self._geom_pos[:, self._hfield_geom, 2] = np.where(rough, self.model.geom_pos[self._hfield_geom, 2], AWAY)
-                self._geom_dataid[:, self._hfield_geom] = self._hfield_of[p.terrain]
-            m.geom_pos.assign(self._geom_pos)
-            m.geom_dataid.assign(self._geom_dataid)
-            # MuJoCo Warp computes the world poses of static geoms once, in put_data: move them there too
-            xpos = self.d.geom_xpos.numpy()
-            xpos[:, self._ground] = self._geom_pos[:, self._ground]
-            self.d.geom_xpos.assign(xpos)
+            g, table = self._ground, self._ground_table
+            for name in GROUND_FIELDS:  # each world's ground geoms as its terrain shows them
+                array = getattr(m, name)
+                value = array.numpy()
+                value[:, g] = table[name][p.terrain]
+                array.assign(value)
+            # MuJoCo Warp computes the world poses of static geoms once, in put_data: set them there too
+            for name, field in (("geom_xpos", "geom_pos"), ("geom_xmat", "xmat")):
+                value = getattr(self.d, name).numpy()
+                value[:, g] = table[field][p.terrain].reshape(value[:, g].shape)
+                getattr(self.d, name).assign(value)
             if mass_changed:
                 m.body_mass.assign(nom.body_mass[None] * mass)
                 m.body_inertia.assign(nom.body_inertia[None] * mass[:, :, None])
                 mjw.set_const(m, self.d)  # subtree masses, inverse weights, acc0 of every world
+
+    def _ground_tables(self, scratch: mujoco.MjModel, hfield_of: dict[int, int]) -> tuple[np.ndarray, dict]:
+        """The ground geoms, and per terrain (leading dimension) their pose, size, bounds, heightfield
+        and orientation matrix as the scene's `apply` sets them on an MjModel; hidden ones moved AWAY."""
+        ground = np.array(sorted(self._scene._ids.values()))
+        table = {name: [] for name in (*GROUND_FIELDS, "xmat")}
+        for t in range(len(self.terrains)):
+            self._scene.apply(scratch, t)
+            pos = scratch.geom_pos[ground].copy()
+            pos[scratch.geom_contype[ground] == 0, 2] = AWAY
+            dataid = scratch.geom_dataid[ground].copy()
+            dataid[dataid >= 0] = hfield_of.get(t, dataid[dataid >= 0])
+            xmat = np.zeros((len(ground), 9))
+            for row, gid in enumerate(ground):
+                mujoco.mju_quat2Mat(xmat[row], scratch.geom_quat[gid])
+            for name, value in (("geom_pos", pos), ("geom_quat", scratch.geom_quat[ground]),
+                                ("geom_size", scratch.geom_size[ground]),
+                                ("geom_aabb", scratch.geom_aabb[ground].reshape(-1, 2, 3)),
+                                ("geom_rbound", scratch.geom_rbound[ground]), ("geom_dataid", dataid), ("xmat", xmat)):
+                table[name].append(np.array(value))
+        return ground, {name: np.stack(rows) for name, rows in table.items()}
 
     def _lift_onto_terrain(self, worlds: np.ndarray) -> np.ndarray:
         """(k,) lift of each world, as the C backend's `_lift_onto_terrain`, from the sole corners of
         the qpos just written (kinematics on the device, a loop over the terrains, not the worlds)."""
         lift = np.zeros(len(worlds))
         which = self._params.terrain[worlds]
-        needed = self._params.lift[worlds] & np.array([isinstance(self.terrains[t], Rough) for t in which], dtype=bool)
+        needed = self._params.lift[worlds] & np.array([not isinstance(self.terrains[t], Flat) for t in which], dtype=bool)
         if not needed.any():
             return lift
         mjw.kinematics(self.m, self.d)
