@@ -141,3 +141,24 @@ def test_device_names_are_checked_with_one_clear_error():
     if warp.get_cuda_device_count() == 0:
         with pytest.raises(ConfigError, match="needs an NVIDIA GPU"):
             make_sim(ROBOT, 2, CONFIG, device="cuda")
+
+
+def test_ppo_trains_on_the_warp_backend():
+    """The plumbing: PPO iterations (rsl_rl updates) on a TrackingEnv whose physics is MuJoCo Warp
+    (device "warp-cpu"). Too slow on a CPU to show learning; the C backend's training test does."""
+    import torch
+
+    from opt2skill.rl.config import PPOConfig
+    from opt2skill.rl.trainer import Schedule, Trainer
+
+    traj, _ = recorded_reference(steps=40)
+    config = exact_config()
+    bank = ReferenceBank.from_trajectories(ROBOT, [traj], config.observations.end_effectors)
+    torch.manual_seed(0)
+    with TrackingEnv(ROBOT, bank, config, 4, seed=0, device="warp-cpu") as env:
+        assert isinstance(env.sim, WarpBatchedSim)
+        trainer = Trainer(env, PPOConfig(rollout_seconds=0.05), seed=0)
+        figures = trainer.train(Schedule(total_steps=2 * trainer.batch), progress=False)
+        assert trainer.iteration == 2 and trainer.env_steps == 2 * trainer.batch
+        losses = [v for k, v in figures.items() if k.startswith("loss/")]
+        assert losses and np.all(np.isfinite(losses)), figures
