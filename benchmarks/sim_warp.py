@@ -24,6 +24,7 @@ import numpy as np
 from sim_ceiling import machine, standing_targets
 from sim_throughput import TABLE_II
 
+from opt2skill.errors import ConfigError
 from opt2skill.model import load_robot
 from opt2skill.sim import SimConfig
 from opt2skill.sim.devices import check_device
@@ -74,13 +75,24 @@ def measure(robot, nworld: int, device: str, seconds: float, noise: float, seed:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--device", default="cuda", help="cuda, cuda:K, or cpu (Warp's CPU device)")
+    parser.add_argument("--device", default=None, help="cuda, cuda:K, or cpu (Warp's CPU device); default: cuda "
+                        "if MuJoCo Warp and a GPU are here, else nothing to measure (make bench)")
     parser.add_argument("--worlds", type=int, nargs="+", default=None)
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--noise", type=float, default=0.05, help="std of the PD target jitter, rad")
     args = parser.parse_args()
+    if args.device is None:
+        try:
+            check_device("cuda")
+        except ConfigError as exc:
+            print(f"skipped: {exc} (pass --device cuda or --device cpu to insist)")
+            return
+        args.device = "cuda"
     device = "cpu" if args.device in ("cpu", "warp-cpu") else args.device
-    check_device("warp-cpu" if device == "cpu" else device)
+    try:
+        check_device("warp-cpu" if device == "cpu" else device)
+    except ConfigError as exc:
+        raise SystemExit(f"error: {exc}") from None
     worlds = args.worlds or ([4, 16] if device == "cpu" else [1024, 2048, 4096, 8192])
     from opt2skill.sim.warp_sim import wp
 

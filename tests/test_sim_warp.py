@@ -1,10 +1,11 @@
 """The MuJoCo Warp backend, on Warp's CPU device, steps Digit like the C backend: same model, same state,
-same PD targets, contacts with the floor, one world with randomized parameters and an action delay.
-The tracking environment on either backend gives the same observations and rewards.
+same PD targets, worlds on the floor (one with randomized parameters and an action delay), on rough
+ground and on a stair. The tracking environment on either backend gives the same observations and
+rewards, and PPO runs on it.
 
-MuJoCo Warp computes in float32, the C backend in float64: the tolerances below are about 50 times
-the differences measured over these horizons (docs/sim.md, "MuJoCo Warp backend"). The first run
-on a machine compiles MuJoCo Warp's kernels (about 2.5 min on 2 busy cores, cached after that).
+MuJoCo Warp computes in float32, the C backend in float64: on the floor the tolerances are 50 to
+100 times the differences measured over this horizon (docs/sim.md, "MuJoCo Warp backend"). The
+first run on a machine compiles MuJoCo Warp's kernels (about 2.5 min on 2 cores, cached after that).
 """
 
 from __future__ import annotations
