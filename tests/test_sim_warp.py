@@ -10,6 +10,8 @@ first run on a machine compiles MuJoCo Warp's kernels (about 2.5 min on 2 cores,
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -142,6 +144,11 @@ def test_device_names_are_checked_with_one_clear_error():
     if warp.get_cuda_device_count() == 0:
         with pytest.raises(ConfigError, match="needs an NVIDIA GPU"):
             make_sim(ROBOT, 2, CONFIG, device="cuda")
+        from opt2skill.rl.session import TrainRequest
+
+        with pytest.raises(ConfigError, match="needs an NVIDIA GPU"):  # train --device cuda: before anything is read
+            TrainRequest(dataset=Path("missing"), out=Path("run"), device="cuda").check()
+        assert not Path("run").exists()
 
 
 def test_ppo_trains_on_the_warp_backend():
