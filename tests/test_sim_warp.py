@@ -75,6 +75,10 @@ def both():
             outs[name + "_gains"] = sim.gains()
             outs[name + "_z"] = sim.z_offset
             outs[name + "_ground"] = sim.terrain_height(first.qpos[:, None, :2])
+            if name == "warp":
+                views = sim.device_arrays()
+                outs["views"] = {k: (v.data_ptr(), v.clone()) for k, v in views.items()}
+                outs["pointers"] = {"qpos": sim.d.qpos.ptr, "qvel": sim.d.qvel.ptr, "sensordata": sim._sensors.ptr}
     return outs
 
 
@@ -96,6 +100,15 @@ def test_contact_counts_gains_and_stability_agree(both):
         np.testing.assert_array_equal(a, b)
     # the randomized world really differs from the nominal one (it moved elsewhere on both backends)
     assert np.abs(c[-1].qpos[1] - c[-1].qpos[0]).max() > 100 * TOLERANCE["qpos"]
+
+
+def test_device_arrays_share_warps_memory(both):
+    """The state as torch tensors without copies: same memory as Warp's arrays, the END state."""
+    views, end = both["views"], both["warp"][-1]
+    for name, pointer in both["pointers"].items():
+        assert views[name][0] == pointer
+    np.testing.assert_array_equal(views["qpos"][1].numpy(), end.qpos.astype(np.float32))
+    np.testing.assert_array_equal(views["qvel"][1].numpy(), end.qvel.astype(np.float32))
 
 
 def test_worlds_on_rough_ground_and_stairs_stand_on_their_own_ground(both):
