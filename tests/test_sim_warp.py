@@ -184,3 +184,15 @@ def test_ppo_trains_on_the_warp_backend():
         assert trainer.iteration == 2 and trainer.env_steps == 2 * trainer.batch
         losses = [v for k, v in figures.items() if k.startswith("loss/")]
         assert losses and np.all(np.isfinite(losses)), figures
+
+
+def test_the_installed_gpu_extra_equals_its_pins_and_matches_mujoco():
+    import importlib.metadata as md
+    import tomllib
+
+    pyproject = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    pins = dict(dep.split("==") for dep in pyproject["project"]["optional-dependencies"]["gpu"])
+    assert set(pins) == {"mujoco-warp", "warp-lang"}
+    for package, version in pins.items():
+        assert md.version(package) == version, (package, md.version(package), version)
+    assert md.version("mujoco-warp") == md.version("mujoco")  # MuJoCo Warp releases track MuJoCo's
