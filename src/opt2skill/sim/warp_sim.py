@@ -129,7 +129,7 @@ class WarpBatchedSim(HostBookkeeping):
             self.d = mjw.put_data(base, host, nworld=N, nconmax=nconmax, njmax=njmax)
             self._ctrl_seq = wp.zeros((N, S, base.nu), dtype=float)
             self._sensors = wp.zeros((N, S, base.nsensordata), dtype=float)
-        self._nconmax, self._njmax = nconmax, njmax
+        self._njmax = njmax
 
         everyone = np.arange(N)
         self.set_params(everyone, self._params)
