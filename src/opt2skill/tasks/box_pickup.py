@@ -39,11 +39,10 @@ from opt2skill.trajopt.frames import Frames
 from opt2skill.trajopt.params import Param
 from opt2skill.trajopt.phase_task import PhaseTask, Plan
 from opt2skill.trajopt.phases import Knot, Phase, Problem
-from opt2skill.trajopt.receding import solve_receding
+from opt2skill.trajopt.receding import HoldGuess, solve_receding
 from opt2skill.trajopt.settings import ContactSettings, SolverSettings
-from opt2skill.trajopt.skills.gait import smoothstep
 from opt2skill.trajopt.skills.locomotion import foot_contact, stand_footholds
-from opt2skill.trajopt.skills.manipulation import HandPath, HoldGuess, grasp_contacts, held_object_forces
+from opt2skill.trajopt.skills.manipulation import HandPath, grasp_contacts, held_object_forces
 from opt2skill.trajopt.skills.stride_guess import RecedingSettings
 from opt2skill.trajopt.solver import Solution
 from opt2skill.trajopt.task_config import TaskConfig
@@ -117,8 +116,6 @@ class BoxPickupConfig(TaskConfig):
     board_gap: float = 0.1  # m of free height above the box on the lower board, at least
     edge_clearance: float = 0.04  # m between the box and a board's front edge when it passes the board
     squeeze: float = 20.0  # N each hand presses on the box while it rests on a board
-    touch: float = 20.0  # N each hand presses where the box stops resting on a board, or starts (a fade
-    # towards less before a lift made the expert's grasp in MuJoCo fail: docs/trajopt.md)
     timing: Timing = field(default_factory=Timing)
     weights: BoxWeights = field(default_factory=BoxWeights)
     thresholds: BoxThresholds = field(default_factory=BoxThresholds)
@@ -129,7 +126,7 @@ class BoxPickupConfig(TaskConfig):
     def check_own(self) -> None:
         require(0.1 <= self.box_depth <= 0.4 and 0.1 <= self.box_height <= 0.4, "box_depth and box_height must be in [0.1, 0.4] m")
         require(0.02 <= self.pregrasp <= 0.2, "pregrasp must be in [0.02, 0.2] m")
-        require(0.0 <= self.touch <= self.squeeze <= 200.0, "squeeze and touch must satisfy 0 <= touch <= squeeze <= 200 N")
+        require(0.0 <= self.squeeze <= 200.0, "squeeze must be in [0, 200] N")
         require(0.0 <= self.retract <= 0.15 and 0.01 <= self.lift <= 0.1, "retract in [0, 0.15] m, lift in [0.01, 0.1] m")
         for section in (self.timing, self.weights, self.thresholds, self.receding):
             section.check()
@@ -219,19 +216,13 @@ class BoxPickupTask(PhaseTask):
 
             return costs
 
-        def touching(points: dict[str, np.ndarray], rising: bool):
-            start = t
-
+        def touching(points: dict[str, np.ndarray]):
             def costs(knot: Knot, terms) -> list:
                 if knot.kind == "running":
                     # A pure squeeze: opposite forces along the faces' normals, so the hands add no net
-                    # force to the box and it rests on its board (the optimizer sees no box). It fades
-                    # towards a touch before a lift and grows from one after a placement: while the
-                    # box is a payload the optimizer's arms push on nothing, so they must not push then.
-                    s = smoothstep((knot.time - start) / max(T.squeeze, T.release))
-                    f = cfg.touch + (cfg.squeeze - cfg.touch) * (1.0 - s if rising else s)
+                    # force to the box and it rests on its board (the optimizer sees no box).
                     return balance(knot, terms) + [
-                        (f"{h}_squeeze", terms.contact_force(self.builder.frame_id(h), f * normals[h], (1, 1, 1)),
+                        (f"{h}_squeeze", terms.contact_force(self.builder.frame_id(h), cfg.squeeze * normals[h], (1, 1, 1)),
                          w.squeeze) for h in points]
                 if knot.kind != "impulse":
                     return balance(knot, terms)
@@ -248,7 +239,7 @@ class BoxPickupTask(PhaseTask):
             nonlocal t
             contacts = feet + (grasp_contacts(grasping, normals) if grasping else ())
             path = HandPath(start, end, t, duration)
-            costs = touching(grasping, label == "squeeze") if grasping else hands_along(path, weight)
+            costs = touching(grasping) if grasping else hands_along(path, weight)
             phases.append(Phase(duration, contacts, costs, label, payload=payload))
             t += duration
 

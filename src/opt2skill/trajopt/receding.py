@@ -30,6 +30,26 @@ CLOSE_GAPS_ABOVE = 1e-9  # a window whose largest gap exceeds this is made feasi
 Extend = Callable[[list, list, list, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
 
+class HoldGuess:
+    """`extend` for `solve_receding`: the next node's guess holds the last state, at rest, with the
+    torques that hold it there (quasi-static)."""
+
+    def __init__(self, problem: Problem):
+        self.problem = problem
+        model = problem.shooting.runningModels[0]
+        self.nq, self.nv = model.state.nq, model.state.nv
+
+    def __call__(self, gx: list, gu: list, gK: list, j: int):
+        x = gx[j].copy()
+        x[self.nq :] = 0.0
+        node = self.problem.nodes[j]
+        if node.kind != "running":
+            return x, np.zeros(0), np.zeros((0, 2 * self.nv))
+        model, data = self.problem.shooting.runningModels[j], self.problem.shooting.runningDatas[j]
+        return x, model.quasiStatic(data, gx[j]), np.zeros((model.nu, 2 * self.nv))
+
+
+
 def solve_receding(
     problem: Problem,
     settings: SolverSettings,

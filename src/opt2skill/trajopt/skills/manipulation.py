@@ -11,7 +11,6 @@ payload, and the record's hand forces while it is held.
   to hold the object; the squeeze's joint torques are added to the arms. The squeeze pair exerts no
   net force or moment on the robot (its forces are opposite and on one line), so the robot-only
   equations of motion of every frame still balance exactly.
-- `HoldGuess`: receding-window guess for non-periodic motions: hold the last state at rest.
 """
 
 from __future__ import annotations
@@ -133,22 +132,3 @@ def _carried_frames(problem: Problem, n_frames: int) -> np.ndarray:
             k0 = int(round(node.time / FRAME_DT))
             out[k0 : k0 + int(round(node.dt / FRAME_DT))] = True
     return out
-
-
-class HoldGuess:
-    """`extend` for `solve_receding`: the next node's guess holds the last state, at rest, with the
-    torques that hold it there (quasi-static)."""
-
-    def __init__(self, problem: Problem):
-        self.problem = problem
-        model = problem.shooting.runningModels[0]
-        self.nq, self.nv = model.state.nq, model.state.nv
-
-    def __call__(self, gx: list, gu: list, gK: list, j: int):
-        x = gx[j].copy()
-        x[self.nq :] = 0.0
-        node = self.problem.nodes[j]
-        if node.kind != "running":
-            return x, np.zeros(0), np.zeros((0, 2 * self.nv))
-        model, data = self.problem.shooting.runningModels[j], self.problem.shooting.runningDatas[j]
-        return x, model.quasiStatic(data, gx[j]), np.zeros((model.nu, 2 * self.nv))

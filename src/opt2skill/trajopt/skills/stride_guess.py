@@ -17,6 +17,7 @@ import pinocchio as pin
 from opt2skill.trajopt.config import require
 from opt2skill.trajopt.skills.gait import GaitPlan
 from opt2skill.trajopt.phases import Problem
+from opt2skill.trajopt.receding import HoldGuess
 
 
 @dataclass(frozen=True)
@@ -51,7 +52,7 @@ class StrideGuess:
             i0 = int(np.searchsorted(times, first - 1e-9))
             i1 = int(np.searchsorted(times, first + self.stride - 1e-9))
             self.period = i1 - i0  # nodes per stride (running and impulse)
-        self.quasi_static = {}
+        self.hold = HoldGuess(problem)  # before the first full stride and after the last step
 
     def __call__(self, gx: list, gu: list, gK: list, j: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         node = self.nodes[j]
@@ -66,12 +67,7 @@ class StrideGuess:
         if periodic:
             x = self._carry(gx[src + 1], self.nodes[src + 1].time, self.nodes[j + 1].time)
             return x, gu[src].copy(), gK[src].copy()
-        x = gx[j].copy()
-        x[self.nq :] = 0.0
-        model, data = self.problem.shooting.runningModels[j], self.problem.shooting.runningDatas[j]
-        if node.kind != "running":
-            return x, np.zeros(0), np.zeros((0, 2 * self.nv))
-        return x, model.quasiStatic(data, gx[j]), np.zeros((model.nu, 2 * self.nv))
+        return self.hold(gx, gu, gK, j)
 
     def _carry(self, x: np.ndarray, t_from: float, t_to: float) -> np.ndarray:
         """x with its base pose moved by the planned path's displacement from t_from to t_to."""
