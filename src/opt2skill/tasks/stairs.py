@@ -203,10 +203,9 @@ def nosing_clearance(gait: GaitPlan, corners: np.ndarray, feet: list[str], scene
     for step in gait.steps:
         frames = slice(int(round(step.liftoff / FRAME_DT)) + 1, int(round(step.touchdown / FRAME_DT)))
         c = corners[frames, feet.index(step.swing)]  # (F, 4, 3)
-        heel = c[:, :, [0, 2]].min(axis=1) * [1, 0] + c[:, :, [0, 2]].mean(axis=1) * [0, 1]
-        toe = c[:, :, [0, 2]].max(axis=1) * [1, 0] + c[:, :, [0, 2]].mean(axis=1) * [0, 1]
-        low = c[:, :, 2].min(axis=1)
-        heel[:, 1] = toe[:, 1] = low  # the sole's lowest height, heel to toe
+        low = c[:, :, 2].min(axis=1)  # the sole as a segment at its lowest height, heel to toe
+        heel = np.column_stack([c[:, :, 0].min(axis=1), low])
+        toe = np.column_stack([c[:, :, 0].max(axis=1), low])
         for x, z in zip(edges, tops):
             d = _segment_distance(heel, toe, np.array([x, z]))
             over = (heel[:, 0] <= x) & (x <= toe[:, 0]) & (low < z)
