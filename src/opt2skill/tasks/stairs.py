@@ -27,12 +27,8 @@ from opt2skill.tasks.walk import speed_error
 from opt2skill.trajopt.config import require
 from opt2skill.trajopt.params import Param
 from opt2skill.trajopt.phase_task import Plan
-from opt2skill.trajopt.posture import Posture
-from opt2skill.trajopt.settings import ContactSettings, SolverSettings
 from opt2skill.trajopt.skills.gait import Foothold, GaitPlan, GaitSpec, on_frame_grid, plan_gait, stair_swing_reference
-from opt2skill.trajopt.skills.locomotion import LocomotionTask, LocomotionWeights, com_xy, locomotion_phases, stand_footholds
-from opt2skill.trajopt.skills.stride_guess import RecedingSettings
-from opt2skill.trajopt.task_config import TaskConfig
+from opt2skill.trajopt.skills.locomotion import LocomotionConfig, LocomotionTask, com_xy, locomotion_phases, stand_footholds
 
 PARAMS = (
     Param("step_height", allowed=(0.0, 0.15), default_range=(0.05, 0.15), unit="m", help="riser height"),
@@ -58,30 +54,19 @@ class StairsThresholds:
 
 
 @dataclass(frozen=True)
-class StairsConfig(TaskConfig):
+class StairsConfig(LocomotionConfig):
     approach: float = 0.55  # m from the stand pose's CoM to the first nosing
     beyond: float = 0.45  # m the CoM path goes past the last nosing
     edge_margin: float = 0.03  # m between a sole's toe or heel and a nosing
-    stand_start: float = 0.5  # s
-    stand_end: float = 1.0  # s (at least)
-    ramp: float = 1.0  # s to reach the speed, and to stop
-    base_height: float = -0.03  # m, walking base height relative to standing
-    weights: LocomotionWeights = field(default_factory=LocomotionWeights)
-    receding: RecedingSettings = field(default_factory=RecedingSettings)
+    ramp: float = 1.0  # s to reach the speed, and to stop (slower than level walking's)
     thresholds: StairsThresholds = field(default_factory=StairsThresholds)
-    posture: Posture = field(default_factory=lambda: Posture(base_orientation=0.0, base_velocity=0.0))
-    contact: ContactSettings = field(default_factory=lambda: ContactSettings(min_normal_force=30.0))
-    solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.03, max_iter=200, reg_init=1e-4))
 
     def check_own(self) -> None:
+        super().check_own()
         require(0.3 <= self.approach <= 3.0, f"approach = {self.approach:g} m must be in [0.3, 3] m")
         require(0.3 <= self.beyond <= 3.0, f"beyond = {self.beyond:g} m must be in [0.3, 3] m")
         require(0.0 <= self.edge_margin <= 0.05, "edge_margin must be in [0, 0.05] m")
-        require(self.stand_start >= 0.05 and self.stand_end >= 0.1, "stand_start >= 0.05 s and stand_end >= 0.1 s")
-        require(self.ramp >= 0, "ramp must be >= 0 s")
-        require(-0.2 <= self.base_height <= 0.05, "base_height must be in [-0.2, 0.05] m")
-        for section in (self.weights, self.receding, self.thresholds):
-            section.check()
+        self.thresholds.check()
 
 
 class StairsTask(LocomotionTask):

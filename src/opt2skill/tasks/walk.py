@@ -17,12 +17,8 @@ from opt2skill.tasks import TaskInfo
 from opt2skill.trajopt.config import require
 from opt2skill.trajopt.params import Param
 from opt2skill.trajopt.phase_task import Plan
-from opt2skill.trajopt.posture import Posture
-from opt2skill.trajopt.settings import ContactSettings, SolverSettings
 from opt2skill.trajopt.skills.gait import Foothold, GaitPlan, GaitSpec, plan_gait
-from opt2skill.trajopt.skills.locomotion import LocomotionTask, LocomotionWeights, com_xy, locomotion_phases, stand_footholds
-from opt2skill.trajopt.skills.stride_guess import RecedingSettings
-from opt2skill.trajopt.task_config import TaskConfig
+from opt2skill.trajopt.skills.locomotion import LocomotionConfig, LocomotionTask, com_xy, locomotion_phases, stand_footholds
 
 PARAMS = (
     Param("speed", allowed=(0.0, 1.5), default_range=(0.0, 1.5), unit="m/s", help="forward speed (0: stepping in place)"),
@@ -45,25 +41,15 @@ class WalkThresholds:
 
 
 @dataclass(frozen=True)
-class WalkConfig(TaskConfig):
+class WalkConfig(LocomotionConfig):
     duration: float = 14.0  # s, the whole motion (the paper's dataset)
     steps: int = 0  # number of steps; 0: as many as fit in `duration`
-    stand_start: float = 0.5  # s standing before the first step
-    stand_end: float = 1.0  # s (at least) standing after the last step
-    ramp: float = 1.5  # s to reach the commanded velocity, and to stop
-    base_height: float = -0.03  # m, walking base height relative to standing, before `height_offset`
-    weights: LocomotionWeights = field(default_factory=LocomotionWeights)
-    receding: RecedingSettings = field(default_factory=RecedingSettings)
     thresholds: WalkThresholds = field(default_factory=WalkThresholds)
-    # Shared sections with walking's own defaults.
-    posture: Posture = field(default_factory=lambda: Posture(base_orientation=0.0, base_velocity=0.0))
-    contact: ContactSettings = field(default_factory=lambda: ContactSettings(min_normal_force=30.0))
-    solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.03, max_iter=200, reg_init=1e-4))
 
     def check_own(self) -> None:
+        super().check_own()
         check_gait_timing(self)
-        for section in (self.weights, self.receding, self.thresholds):
-            section.check()
+        self.thresholds.check()
 
 
 def check_gait_timing(cfg) -> None:

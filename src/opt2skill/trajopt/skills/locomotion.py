@@ -12,7 +12,7 @@ longer windows.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
@@ -26,8 +26,11 @@ from opt2skill.trajopt.phase_task import PhaseTask, Plan
 from opt2skill.trajopt.phases import Contact, Knot, Phase, Problem
 from opt2skill.trajopt.receding import solve_receding
 from opt2skill.trajopt.skills.gait import Foothold, GaitPlan, Step, swing_reference, yaw_matrix
-from opt2skill.trajopt.skills.stride_guess import StrideGuess
+from opt2skill.trajopt.posture import Posture
+from opt2skill.trajopt.settings import ContactSettings, SolverSettings
+from opt2skill.trajopt.skills.stride_guess import RecedingSettings, StrideGuess
 from opt2skill.trajopt.solver import Solution
+from opt2skill.trajopt.task_config import TaskConfig
 
 SwingReference = Callable[[Step, float, float], tuple[np.ndarray, float, np.ndarray]]
 
@@ -44,6 +47,29 @@ class LocomotionWeights:
 
     def check(self) -> None:
         require(all(v >= 0 for v in vars(self).values()), "locomotion weights must be >= 0")
+
+
+@dataclass(frozen=True)
+class LocomotionConfig(TaskConfig):
+    """The config fields of every task that walks with this skill; a task adds its own."""
+
+    stand_start: float = 0.5  # s standing before the first step
+    stand_end: float = 1.0  # s (at least) standing after the last step
+    ramp: float = 1.5  # s to reach the commanded velocity, and to stop
+    base_height: float = -0.03  # m, walking base height relative to standing
+    weights: LocomotionWeights = field(default_factory=LocomotionWeights)
+    receding: RecedingSettings = field(default_factory=RecedingSettings)
+    # Shared sections with walking's own defaults.
+    posture: Posture = field(default_factory=lambda: Posture(base_orientation=0.0, base_velocity=0.0))
+    contact: ContactSettings = field(default_factory=lambda: ContactSettings(min_normal_force=30.0))
+    solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.03, max_iter=200, reg_init=1e-4))
+
+    def check_own(self) -> None:
+        require(self.stand_start >= 0.05 and self.stand_end >= 0.1, "stand_start >= 0.05 s and stand_end >= 0.1 s")
+        require(self.ramp >= 0, "ramp must be >= 0 s")
+        require(-0.2 <= self.base_height <= 0.05, "base_height must be in [-0.2, 0.05] m")
+        for section in (self.weights, self.receding):
+            section.check()
 
 
 def stand_footholds(robot: Robot, q: np.ndarray) -> dict[str, Foothold]:
