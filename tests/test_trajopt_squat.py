@@ -8,6 +8,7 @@ from opt2skill.data.checks import frame_dynamics_residual, touchdown_frames
 from opt2skill.data.record import FRAME_DT
 from opt2skill.model import load_robot
 from opt2skill.tasks import get_task
+from opt2skill.trajopt.solver import riccati_gains
 
 
 @pytest.fixture(scope="module")
@@ -63,20 +64,23 @@ def test_gains_follow_the_documented_convention(robot, squat):
     assert knots["gains"].dtype == np.float32
     assert knots["gains"].shape == (len(knots["u"]), robot.nu, 2 * robot.nv)
     problem = task.builder.build(task.plan(traj.params).phases, knots["x"][0], task.config.solver.dt)
-    state = problem.shooting.runningModels[0].state
-    x0 = knots["x"][0].copy()
-    x0[robot.pin_model.nq + 0] += 0.15  # a forward push of the base
-    deviation = {}
-    for sign in (0.0, 1.0, -1.0):  # open loop, the documented sign, the opposite sign
-        x = x0.copy()
-        for k, (model, data) in enumerate(zip(problem.shooting.runningModels, problem.shooting.runningDatas)):
-            u = knots["u"][k] - sign * knots["gains"][k] @ state.diff(knots["x"][k], x)
-            model.calc(data, x, u)
-            x = data.xnext.copy()
-        deviation[sign] = np.linalg.norm(state.diff(knots["x"][-1], x))
+    # open loop, the documented sign, the opposite sign
+    deviation = {sign: _pushed_deviation(robot, problem, knots, sign * knots["gains"]) for sign in (0.0, 1.0, -1.0)}
     assert deviation[1.0] < 1e-2
     for other in (0.0, -1.0):
         assert not np.isfinite(deviation[other]) or deviation[other] > 0.1
+
+
+def _pushed_deviation(robot, problem, knots, gains) -> float:
+    """How far from the plan's last state a forward push of the base at the start ends under
+    u = u[k] - gains[k] @ diff(x[k], x) on the optimizer's own dynamics."""
+    state = problem.shooting.runningModels[0].state
+    x = knots["x"][0].copy()
+    x[robot.pin_model.nq + 0] += 0.15
+    for k, (model, data) in enumerate(zip(problem.shooting.runningModels, problem.shooting.runningDatas)):
+        model.calc(data, x, knots["u"][k] - gains[k] @ state.diff(knots["x"][k], x))
+        x = data.xnext.copy()
+    return float(np.linalg.norm(state.diff(knots["x"][-1], x)))
 
 
 def test_the_same_parameters_give_the_same_trajectory(robot, squat):
@@ -100,3 +104,25 @@ def test_knots_hold_the_solver_grid(robot, squat):
     assert np.allclose(np.diff(k["time"]), k["dt"]) and not k["impulse"].any()
     q_pin = pin.neutral(robot.pin_model)
     assert k["x"].shape[1] == len(q_pin) + robot.nv
+
+
+def test_riccati_gains_repeat_the_solvers_and_soften_with_regularization(robot, squat):
+    """One backward pass at the converged squat gives the solver's own gains back (the squat is one
+    full-horizon solve; the solver's were computed one iterate earlier, measured 1.7 % apart); regularizing Quu and Vxx lowers every node's gain, and those softer gains
+    still bring a pushed start back to the plan."""
+    task, traj = squat
+    k = traj.knots
+    plan = task.plan(traj.params)
+    solver = task.config.solver
+    problem = task.builder.build(task._with_standard_costs(plan), k["x"][0], solver.dt, integrator=solver.integrator)
+    us = [np.asarray(u) for u in k["u"]]
+    stiff = np.array(riccati_gains(problem.shooting, k["x"], us, solver.reg_init))
+    assert np.linalg.norm(stiff - k["gains"]) < 0.05 * np.linalg.norm(k["gains"])
+    soft = np.array(riccati_gains(problem.shooting, k["x"], us, 1e-2))
+    ratio = np.linalg.norm(soft, axis=(1, 2)) / np.linalg.norm(stiff, axis=(1, 2))
+    assert ratio.max() < 0.2 and ratio.min() > 1e-3  # measured 0.014 to 0.079
+    assert _pushed_deviation(robot, problem, k, soft) < 1e-2
+    again = get_task("squat", robot, {"solver.keep_gains": True, "solver.gains": "riccati",
+                                      "solver.gains_regularization": 1e-2}).solve(traj.params, seed=3)
+    assert np.linalg.norm(again.knots["gains"] - soft) < 1e-5 * np.linalg.norm(soft)  # float32 in the record
+    assert np.array_equal(again.qpos, traj.qpos)  # only the gains change

@@ -27,7 +27,7 @@ from opt2skill.trajopt.config import apply_overrides, config_to_dict
 from opt2skill.trajopt.extract import knots, to_trajectory
 from opt2skill.trajopt.params import Param, ParamSpace
 from opt2skill.trajopt.phases import Phase, Problem, ProblemBuilder
-from opt2skill.trajopt.solver import Solution, solve
+from opt2skill.trajopt.solver import Solution, riccati_gains, solve
 from opt2skill.trajopt.task import Task
 from opt2skill.trajopt.tracking import track
 
@@ -74,6 +74,9 @@ class PhaseTask(Task):
         phases = self._with_standard_costs(plan)
         problem = self.builder.build(phases, plan.x0, settings.dt, integrator=settings.integrator)
         solution = self.optimize(problem, plan)
+        if settings.keep_gains and settings.gains == "riccati":
+            gains = riccati_gains(problem.shooting, solution.xs, solution.us, settings.gains_regularization)
+            solution = dataclasses.replace(solution, K=gains)
         solver_knots = knots(problem, solution, settings.keep_gains)  # before the rollout moves contacts
         if settings.completion == "track":
             frames = track(problem, solution, self._cones(problem), settings.track_bandwidth)

@@ -8,6 +8,7 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.trajopt.config import require
 
 COMPLETIONS = ("track", "rollout", "interpolate")
+GAINS = ("solver", "riccati")
 INTEGRATORS = ("euler", "matched", "rk2", "rk3", "rk4")
 
 
@@ -63,6 +64,11 @@ class SolverSettings:
     completion: str = "track"  # 200 Hz frames: "track" (acceleration tracking, exact), "rollout" (feedback law) or "interpolate"
     track_bandwidth: float = 30.0  # rad/s, the PD of the "track" completion (Kp = bandwidth^2, Kd = 2 bandwidth)
     keep_gains: bool = False  # store the feedback gains K with the knots (traj.knots)
+    # The feedback expert's gains: "solver" keeps each receding window's own Riccati gains; "riccati"
+    # recomputes them in one backward pass over the whole motion at the solution, with Quu and Vxx
+    # regularized by `gains_regularization` (softer feedback, no gains inflated by a window's end).
+    gains: str = "solver"
+    gains_regularization: float = 1e-2
 
     def check(self) -> None:
         steps = self.dt / FRAME_DT
@@ -76,4 +82,6 @@ class SolverSettings:
         require(self.stall_window >= 1 and self.stall_tol >= 0, "solver.stall_window >= 1 and stall_tol >= 0")
         require(self.integrator in INTEGRATORS, f"solver.integrator must be one of {INTEGRATORS}, got '{self.integrator}'")
         require(self.track_bandwidth > 0, "solver.track_bandwidth must be > 0 rad/s")
+        require(self.gains in GAINS, f"solver.gains must be one of {GAINS}, got '{self.gains}'")
+        require(self.gains_regularization >= 0, "solver.gains_regularization must be >= 0")
         require(self.completion in COMPLETIONS, f"solver.completion must be one of {COMPLETIONS}, got '{self.completion}'")

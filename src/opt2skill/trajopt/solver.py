@@ -83,6 +83,18 @@ def solve(
     return solve_shooting(problem.shooting, settings, init_xs, init_us, max_iter)
 
 
+def riccati_gains(shooting: crocoddyl.ShootingProblem, xs, us, regularization: float) -> list[np.ndarray]:
+    """The feedback gains of a solved motion: one Box-FDDP backward pass over the whole problem at
+    (xs, us), its Quu and Vxx diagonals raised by `regularization` (Crocoddyl's preg). An impulse
+    node keeps its empty gain; a control at a torque bound gets a zero row, as in the solve."""
+    solver = crocoddyl.SolverBoxFDDP(shooting)
+    solver.setCandidate([np.asarray(x, dtype=float) for x in xs], [np.asarray(u, dtype=float) for u in us], True)
+    solver.preg = solver.dreg = float(regularization)
+    solver.calcDiff()
+    solver.backwardPass()
+    return [np.array(k) for k in solver.K]
+
+
 def solve_shooting(
     shooting: crocoddyl.ShootingProblem,
     settings: SolverSettings,
