@@ -9,6 +9,7 @@ import pytest
 from opt2skill.errors import ConfigError
 from opt2skill.model import load_robot
 from opt2skill.scene import Box, Desk, Flat, RoughGround, Scene, Shelf, Slope, Stairs, build_model, prop_qpos
+from opt2skill.scene.build import add_prop
 
 
 @pytest.fixture(scope="module")
@@ -139,3 +140,22 @@ def test_flat_scene_is_the_robots_own_model(robot):
     assert (model.nq, model.nv, model.nu, model.ngeom, model.nsensordata) == (
         robot.nq, robot.nv, robot.nu, robot.mj_model.ngeom, robot.mj_model.nsensordata)
     assert np.allclose(model.geom_size, robot.mj_model.geom_size)
+
+
+@pytest.mark.parametrize("torsion", [0.0, 0.02])
+def test_a_box_squeezed_between_two_points_turns_about_them_only_without_torsion(torsion):
+    """Two fixed spheres press on the box's side faces (the hands' grasp); a spin about the line
+    between them keeps going with point contacts, and stops with the box's torsional friction."""
+    spec = mujoco.MjSpec()
+    spec.option.gravity = [0.0, 0.0, 0.0]
+    add_prop(spec, Box((0.16, 0.3, 0.2), mass=1.0, pos=(0.0, 0.0, 1.0), torsion=torsion))
+    for side in (1, -1):  # each sphere 2 mm into its face: a squeeze of tens of newtons
+        spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.03, 0, 0], pos=[0.0, side * 0.178, 1.0],
+                                friction=[1.0, 0.0, 0.0])
+    model = spec.compile()
+    d = mujoco.MjData(model)
+    d.qvel[4] = 2.0  # rad/s about y, the line between the spheres
+    for _ in range(500):
+        mujoco.mj_step(model, d)
+    spin = abs(d.qvel[4])
+    assert (spin > 1.0) if torsion == 0.0 else (spin < 0.05)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from opt2skill.model.mujoco_model import FLOOR_FRICTION, GROUND_CONAFFINITY, GROUND_CONTYPE
+from opt2skill.model.mujoco_model import GROUND_CONAFFINITY, GROUND_CONTYPE
 from opt2skill.model.robot import Robot
 from opt2skill.scene.description import Scene
 from opt2skill.scene.ground import TerrainScene
@@ -49,8 +49,9 @@ def show_ground(model: mujoco.MjModel, ground: TerrainScene) -> None:
 def add_prop(spec: mujoco.MjSpec, prop: Prop) -> None:
     """A fixed prop's geoms on the world body, or a box on its own free body. MuJoCo names are
     `NAME/GEOM` (fixed) and the body `NAME` with joint `NAME/free` (free)."""
+    condim, friction = prop.contact
     look = dict(type=mujoco.mjtGeom.mjGEOM_BOX, contype=GROUND_CONTYPE, conaffinity=GROUND_CONAFFINITY,
-                friction=[prop.friction, *FLOOR_FRICTION[1:]], rgba=PROP_RGBA[prop.kind])
+                condim=condim, friction=list(friction), rgba=PROP_RGBA[prop.kind])
     if prop.fixed:
         for g in prop.geoms():
             spec.worldbody.add_geom(name=f"{prop.name}/{g.name}", size=g.half, pos=g.centre, quat=g.quat, **look)

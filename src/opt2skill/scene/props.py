@@ -16,6 +16,7 @@ from typing import ClassVar
 import numpy as np
 
 from opt2skill.errors import ConfigError
+from opt2skill.model.mujoco_model import FLOOR_FRICTION
 
 POST = 0.03  # m, side of the square posts under boards
 NAME = re.compile(r"[A-Za-z0-9_]+\Z")  # prop names prefix MuJoCo names: no '/' or spaces
@@ -62,6 +63,12 @@ class Box:
     pos: tuple[float, float, float] = (0.5, 0.0, 0.8)
     yaw: float = 0.0  # rad, about z
     friction: float = 1.0
+    # Torsional friction of the box's contacts (m, about a contact patch's radius; MuJoCo condim 4).
+    # 0 (the default) keeps point contacts: hands pressing on two opposite faces hold the box's
+    # position, not its turn about the line between them. With torsion the box turns with the
+    # palms, and the optimizer does not plan the hands' rotation: at 0.02 m the feedback expert
+    # tipped boxes over (docs/trajopt.md).
+    torsion: float = 0.0
     name: str = "box"
 
     def __post_init__(self) -> None:
@@ -71,6 +78,7 @@ class Box:
         _number(where, "mass", self.mass, 0.01, 50.0, "kg")
         _vector(where, "pos", self.pos, 3, -100.0, 100.0, "m")
         _common(where, self.yaw, self.friction)
+        _number(where, "torsion", self.torsion, 0.0, 0.1, "m")
         if self.pos[2] < self.size[2] / 2 - 1e-9:
             raise ConfigError(f"{where}: its bottom is below z = 0 (pos z {self.pos[2]:g} m < half its height "
                               f"{self.size[2] / 2:g} m)")
@@ -78,6 +86,13 @@ class Box:
     @property
     def fixed(self) -> bool:
         return False
+
+    @property
+    def contact(self) -> tuple[int, tuple[float, float, float]]:
+        """MuJoCo condim and friction (sliding, torsional, rolling) of the box's geom."""
+        if self.torsion == 0.0:
+            return 3, (self.friction, *FLOOR_FRICTION[1:])
+        return 4, (self.friction, self.torsion, FLOOR_FRICTION[2])
 
     def geoms(self) -> list[Geom]:
         return [Geom(self.name, np.array(self.pos, float), np.array(self.size, float) / 2, _yaw_quat(self.yaw))]
@@ -125,6 +140,10 @@ class Shelf:
     def fixed(self) -> bool:
         return True
 
+    @property
+    def contact(self) -> tuple[int, tuple[float, float, float]]:
+        return 3, (self.friction, *FLOOR_FRICTION[1:])
+
     def geoms(self) -> list[Geom]:
         return _boards_on_posts(self, [f"board_{i}" for i in range(len(self.boards))])
 
@@ -158,6 +177,10 @@ class Desk:
     @property
     def fixed(self) -> bool:
         return True
+
+    @property
+    def contact(self) -> tuple[int, tuple[float, float, float]]:
+        return 3, (self.friction, *FLOOR_FRICTION[1:])
 
     def geoms(self) -> list[Geom]:
         return _boards_on_posts(self, ["top"])
