@@ -109,6 +109,11 @@ def test_a_reset_mid_carry_puts_the_box_between_the_hands_and_the_references_tor
             hands = env.state.ee_pos[0, [ee.index(h) for h in HANDS]]
             assert np.linalg.norm(env.state.prop_pose[0, 0, :3] - hands.mean(axis=0)) < 0.02  # still in the hands
         assert env.state.prop_pose[0, 0, 2] > start[2] + 0.05  # lifted with them towards the upper board
+        # The critic (only) sees the box's position error to its reference.
+        assert "prop_pos_error" not in env.layout.actor
+        _, critic = env.observations()
+        error = env.state.prop_pose[0, 0, :3] - bank.prop_pose[env._row[0], 0, :3]
+        np.testing.assert_allclose(critic[0, env.layout.critic["prop_pos_error"]], error, atol=1e-6)
 
 
 def test_a_box_far_from_its_reference_ends_the_episode_like_a_fall(records):

@@ -94,7 +94,7 @@ class TrackingEnv:
         obs = config.observations
         self.contact_names = bank.contact_names
         self._contact_rows = SensorLayout.from_model(robot.mj_model, robot.config).contact_rows(self.contact_names)
-        self.layout: ObservationLayout = layout(obs, self.nu, len(self.contact_names))
+        self.layout: ObservationLayout = layout(obs, self.nu, len(self.contact_names), self.sim.props.nfree)
         ee_names = list(robot.config.end_effectors)
         self._ee_index = np.array([ee_names.index(e) for e in obs.end_effectors])
         self.default_pose = robot.config.default_pose.astype(np.float64)
@@ -274,6 +274,8 @@ class TrackingEnv:
             "ref_base_ang_vel": kin["base_ang_vel"], "ref_joint_pos": kin["joint_pos"], "ref_joint_vel": kin["joint_vel"],
             "ref_ee_pos": kin["ee_pos"], "ref_contact_force": dyn["force_heading"], "ref_joint_torque": dyn["joint_torque"],
         }
+        if self._props_on:
+            values["prop_pos_error"] = self._prop_offsets(self.state, self._row).reshape(self.num_envs, -1)
         critic = fill(np.empty((self.num_envs, self.critic_dim), np.float32), self.layout.critic, values)
         noise, f = obs_cfg.noise, self.noise_factor
         if f > 0:
@@ -328,13 +330,17 @@ class TrackingEnv:
 
     def prop_error(self, out: SimStep, rows: np.ndarray) -> np.ndarray:
         """(N,) largest distance (m) of a world's free props from their reference positions at `rows`
-        (each world's reference row; lifted by the world's z offset as the props were at reset)."""
+        (each world's reference row)."""
         if not self._props_on:
             return np.zeros(self.num_envs)
+        return np.linalg.norm(self._prop_offsets(out, rows), axis=-1).max(axis=1)
+
+    def _prop_offsets(self, out: SimStep, rows: np.ndarray) -> np.ndarray:
+        """(N, nfree, 3) free props' positions minus their reference positions at `rows` (lifted by the
+        world's z offset, as the props were at reset), world axes; 0 in unused slots."""
         ref = self.bank.prop_pose[rows, :, :3].astype(np.float64)
         ref[..., 2] += self.sim.z_offset[:, None]
-        distance = np.linalg.norm(out.prop_pose[..., :3] - ref, axis=-1)
-        return np.where(self._prop_used[self.traj], distance, 0.0).max(axis=1)
+        return np.where(self._prop_used[self.traj][..., None], out.prop_pose[..., :3] - ref, 0.0)
 
     def _causes(self, m: Measurement, errors: dict[str, np.ndarray], kin: dict[str, np.ndarray],
                 unstable: np.ndarray, out: SimStep) -> np.ndarray:
