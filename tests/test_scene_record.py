@@ -50,6 +50,23 @@ def test_a_scene_round_trips_through_the_record(robot, tmp_path):
     assert standing(robot, None, seconds=0.05).scene == Scene()
 
 
+def test_free_props_reference_poses_round_trip_and_old_files_have_none(robot, tmp_path):
+    traj = standing(robot, SCENE, seconds=0.05, lift=LANDING)
+    assert traj.prop_poses == {}
+    pose = np.tile([0.3, 1.0, LANDING + 0.65, 1.0, 0.0, 0.0, 0.0], (traj.num_frames, 1))
+    pose[:, 2] += np.linspace(0.0, 0.1, traj.num_frames)
+    traj.prop_poses = {"box": pose}
+    write_trajectory(tmp_path / "000000.h5", traj, 0)
+    np.testing.assert_array_equal(read_trajectory(tmp_path / "000000.h5").prop_poses["box"], pose)
+    with h5py.File(tmp_path / "000000.h5", "r+") as f:
+        del f["traj_000000/prop_poses"]
+    assert read_trajectory(tmp_path / "000000.h5").prop_poses == {}
+    with pytest.raises(ValueError, match="not a free prop of the scene"):  # the shelf is fixed
+        build_trajectory(robot, traj.qpos, traj.qvel, traj.joint_torque, traj.contact_wrench, traj.contact_active,
+                         task="stand", contact_names=traj.contact_names, params={}, seed=0, scene=SCENE,
+                         prop_poses={"shelf": pose})
+
+
 @pytest.mark.parametrize("stored, message", [
     ('{"terrain": {"kind": "lava"}}', "attribute 'scene' is not a valid scene: unknown terrain kind 'lava'"),
     ("{not json", "attribute 'scene' is not valid JSON"),

@@ -23,7 +23,7 @@ from opt2skill.data.file_check import BadFiles, scan
 from opt2skill.data.frame_table import FrameTable
 from opt2skill.data.record import FRAME_FIELDS, Trajectory
 from opt2skill.data.store import ACCEPTED, SUMMARY, DatasetStore, read_header, read_json
-from opt2skill.data.trajfile import TrajectoryMeta, read_frames, read_trajectory
+from opt2skill.data.trajfile import TrajectoryMeta, read_frames, read_prop_poses, read_trajectory
 from opt2skill.errors import DataError
 
 
@@ -119,6 +119,14 @@ class Dataset:
         self.meta(i)
         try:
             return read_frames(self._path(i), fields, frames=slice(start, stop))
+        except DataError as exc:
+            raise self._bad([str(exc)]) from None
+
+    def prop_poses(self, i: int) -> dict[str, np.ndarray]:
+        """Trajectory i's free-prop reference poses (name -> (T, 7)); empty when it has none."""
+        self.meta(i)
+        try:
+            return read_prop_poses(self._path(i))
         except DataError as exc:
             raise self._bad([str(exc)]) from None
 

@@ -61,6 +61,9 @@ class Trajectory:
     # stores zeros as `joint_torque` and `contact_wrench`: it has no torques or contact forces.
     source: str = "to"
     has_dynamics: bool = True
+    # The reference pose of each free prop of the scene (a box), name -> (T, 7): position and
+    # quaternion (w, x, y, z), world. Empty when the producer gives none (docs/data.md).
+    prop_poses: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def num_frames(self) -> int:
@@ -90,6 +93,7 @@ def build_trajectory(
     scene: Scene | None = None,
     source: str = "to",
     has_dynamics: bool = True,
+    prop_poses: dict[str, np.ndarray] | None = None,
 ) -> Trajectory:
     """A record from 200 Hz state, torques and wrenches; kinematic fields come from the model."""
     qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
@@ -135,4 +139,25 @@ def build_trajectory(
         scene=scene or Scene(),
         source=str(source),
         has_dynamics=bool(has_dynamics),
+        prop_poses=checked_prop_poses(prop_poses or {}, n, scene or Scene()),
     )
+
+
+def checked_prop_poses(poses: dict[str, np.ndarray], frames: int, scene: Scene) -> dict[str, np.ndarray]:
+    """Prop poses as float arrays (frames, 7) with unit quaternions, each of a free prop of `scene`;
+    a ValueError names the first that is not."""
+    free = {p.name for p in scene.props if not p.fixed}
+    out = {}
+    for name, pose in poses.items():
+        pose = np.array(pose, dtype=float)
+        if name not in free:
+            raise ValueError(f"prop pose '{name}' is not a free prop of the scene (free props: {sorted(free)})")
+        if pose.shape != (frames, 7) or not np.all(np.isfinite(pose)):
+            raise ValueError(f"prop pose '{name}' must be {frames} finite rows of 7 (x y z qw qx qy qz), "
+                             f"got shape {pose.shape}")
+        norm = np.linalg.norm(pose[:, 3:], axis=1)
+        if np.any(np.abs(norm - 1.0) > 1e-6):
+            raise ValueError(f"prop pose '{name}' has quaternions that are not unit (norms {norm.min():.4g} "
+                             f"to {norm.max():.4g})")
+        out[name] = pose
+    return out

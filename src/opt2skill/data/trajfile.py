@@ -11,6 +11,8 @@ Layout of a file (docs/data.md):
         time, qpos, ..., com     the frame fields, float64 (contact_active bool), gzip + shuffle,
                                  chunked along time
         knots/                   optional solver-grid arrays, dtype kept (feedback gains float32)
+        prop_poses/NAME          optional, (T, 7) float64 reference pose of each free prop of the
+                                 scene (x y z qw qx qy qz); a file without it reads as no poses
 
 Files are written atomically (`opt2skill.data.atomic`). Anything that is not such a file (not
 HDF5, truncated, another program's HDF5, a malformed attribute) raises a `DataError` that names
@@ -28,7 +30,7 @@ import h5py
 import numpy as np
 
 from opt2skill.data.atomic import atomic_path, dumps
-from opt2skill.data.record import FRAME_FIELDS, Trajectory
+from opt2skill.data.record import FRAME_FIELDS, Trajectory, checked_prop_poses
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.scene.description import Scene
 
@@ -87,6 +89,10 @@ def write_trajectory(path: str | Path, traj: Trajectory, index: int, *, drop_kno
             g.attrs.update(attrs)
             for name in FRAME_FIELDS:
                 _write_array(g, name, np.asarray(getattr(traj, name)))
+            if traj.prop_poses:
+                pg = g.create_group("prop_poses")
+                for name, pose in traj.prop_poses.items():
+                    _write_array(pg, name, np.asarray(pose, dtype=float))
             knots = {k: v for k, v in traj.knots.items() if k not in drop_knots}
             if knots:
                 kg = g.create_group("knots")
@@ -213,6 +219,25 @@ def _finite(ds: h5py.Dataset, value: np.ndarray) -> np.ndarray:
     return value
 
 
+def _prop_poses(g: h5py.Group, frames: int, scene: Scene) -> dict[str, np.ndarray]:
+    """The group's free-prop poses; files written before they existed have none."""
+    pg = g.get("prop_poses")
+    if not isinstance(pg, h5py.Group):
+        return {}
+    poses = {name: _finite(ds, _read(ds)) for name, ds in pg.items() if isinstance(ds, h5py.Dataset)}
+    try:
+        return checked_prop_poses(poses, frames, scene)
+    except ValueError as exc:
+        raise DataError(f"{g.file.filename}:{g.name}: {exc}") from None
+
+
+def read_prop_poses(path: str | Path, group: str | None = None) -> dict[str, np.ndarray]:
+    """Only the free props' reference poses (name -> (T, 7)) of a trajectory file."""
+    with open_file(path) as f:
+        g = _only_group(f, group)
+        return _prop_poses(g, int(_dataset(g, "time").shape[0]), _scene(g))
+
+
 def read_meta(path: str | Path, group: str | None = None) -> TrajectoryMeta:
     with open_file(path) as f:
         g = _only_group(f, group)
@@ -254,4 +279,6 @@ def read_trajectory(path: str | Path, group: str | None = None, *, knots: bool =
         if knots and isinstance(kg, h5py.Group):
             knot_arrays = {name: _read(ds) for name, ds in kg.items() if isinstance(ds, h5py.Dataset)}
         a.pop("index")
-        return Trajectory(**arrays, **a, knots=knot_arrays, scene=_scene(g), **_origin(g))
+        scene = _scene(g)
+        return Trajectory(**arrays, **a, knots=knot_arrays, scene=scene, **_origin(g),
+                          prop_poses=_prop_poses(g, n, scene))

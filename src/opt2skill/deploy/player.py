@@ -28,7 +28,7 @@ from opt2skill.geometry import projected_gravity, quat_error
 from opt2skill.model import load_robot
 from opt2skill.model.robot import Robot
 from opt2skill.model.sensors import SensorLayout, contact_wrenches
-from opt2skill.scene.build import build_model
+from opt2skill.scene.build import build_model, prop_qpos
 from opt2skill.scene.description import Scene
 
 MAX_SPEED = 100.0  # any |qvel| beyond this (m/s, rad/s): the simulation diverged
@@ -161,6 +161,10 @@ class Player:
         ref = ReferenceFrames(reference, self.contacts)
         mujoco.mj_resetData(m, d)  # props at their scene poses
         d.qpos[:nq], d.qvel[:nv] = reference.qpos[0], reference.qvel[0]
+        boxes = {p.name: prop_qpos(m, p.name) for p in reference.scene.props if not p.fixed}
+        for name, at in boxes.items():  # ... or where the reference has them at its first frame
+            if name in reference.prop_poses:
+                d.qpos[at] = reference.prop_poses[name][0]
         d.ctrl[:] = reference.qpos[0, 7:]  # the servos hold the start pose
         mujoco.mj_forward(m, d)
         r = self.sense()
@@ -172,6 +176,7 @@ class Player:
         pending: deque[tuple[int, np.ndarray]] = deque()
         readings = np.empty((self.substeps, m.nsensordata))  # each physics step's sensors, decoded per policy step
         qpos, qvel, torque, wrench, active, seen = [d.qpos[:nq].copy()], [d.qvel[:nv].copy()], [], [], [], []
+        props = {name: [d.qpos[at].copy()] for name, at in boxes.items()}
         substep, cause, action = 0, "time_out", None
         for t in range(reference.num_frames - 1):
             if action is not None:
@@ -194,6 +199,8 @@ class Player:
                 break
             qpos.append(d.qpos[:nq].copy())
             qvel.append(d.qvel[:nv].copy())
+            for name, at in boxes.items():
+                props[name].append(d.qpos[at].copy())
             torque.append(self.sensors.take(readings, "joint_torque").mean(axis=0))  # MEAN over the step
             wrench.append(self._wrenches(readings).mean(axis=0))
             active.append(self._found(readings[-1]) > 0)  # LAST
@@ -209,7 +216,7 @@ class Player:
         tracked = build_trajectory(self.robot, np.array(qpos), np.array(qvel), np.array(torque), np.array(wrench),
                                    np.array(active), task=reference.task, contact_names=tuple(self.contacts),
                                    params=reference.params, seed=reference.seed, ee_names=reference.ee_names,
-                                   scene=reference.scene)
+                                   scene=reference.scene, prop_poses={k: np.array(v) for k, v in props.items()})
         return PlayerRollout(reference, tracked, cause, np.array(seen) if keep_observations else None)
 
     def _wrenches(self, sensordata: np.ndarray) -> np.ndarray:

@@ -136,6 +136,8 @@ class TerminationConfig:
     max_orientation_error: float = 0.8  # rad, geodesic angle between base and reference orientation
     max_xy_error: float = 0.5  # m, horizontal base position error (a robot left behind by a walking reference)
     min_height: float = 0.4  # m, base height above the world's start level: a fall
+    # m, a free prop's (a box's) distance from its reference position: a dropped or pushed box
+    max_prop_error: float = 0.15
 
     def check(self) -> None:
         for f in dataclasses.fields(self):

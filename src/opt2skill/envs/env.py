@@ -27,7 +27,7 @@ from opt2skill.model.sensors import SensorLayout, contact_wrenches
 from opt2skill.sim import BatchedSim, Flat, SimConfig, SimStep
 from opt2skill.sim.devices import make_sim
 
-CAUSES = ("time_out", "fall", "height_error", "orientation_error", "xy_error", "unstable")
+CAUSES = ("time_out", "fall", "height_error", "orientation_error", "xy_error", "unstable", "prop_error")
 
 
 @dataclass
@@ -69,26 +69,32 @@ class TrackingEnv:
         self.num_envs, self.nu = int(num_envs), robot.nu
         self.rng = np.random.default_rng(seed)
         grounds, ground = bank.grounds()
+        prop_sets, self._prop_set = bank.prop_sets()  # (trajectories,) index of each reference's props
         if sim is None:  # every reference's own ground, then the randomized variants (envs/randomization.py)
             self.terrains = randomization.terrains(config.randomization, grounds, bank.xy_range, seed)
             self.sim = make_sim(robot, self.num_envs, SimConfig(nsubstep=5, nthread=threads), self.terrains,
-                                device=device)  # cpu: C MuJoCo; cuda: MuJoCo Warp (docs/sim.md)
+                                device=device, prop_sets=prop_sets)  # cpu: C MuJoCo; cuda: MuJoCo Warp (docs/sim.md)
             self._ground = ground  # (trajectories,) index of each reference's ground in `terrains`
             self._variants = list(range(len(grounds), len(self.terrains)))
         else:  # the caller's terrains (e.g. a terrain sweep) replace the references' flat floor
-            if not all(isinstance(g, Flat) for g in grounds):
+            if not all(isinstance(g, Flat) for g in grounds) or sim.props.sets != tuple(prop_sets):
                 raise ConfigError("a simulator with its own terrains can only track references made on the flat "
-                                  f"floor; these were made on {[g.name for g in grounds]}")
+                                  f"floor without props; these were made on {[g.name for g in grounds]} with "
+                                  f"props {[p.name for s in prop_sets for p in s]}")
             self.sim, self._ground = sim, np.zeros(bank.num_trajectories, dtype=np.int64)
             self._variants = [i for i, t in enumerate(sim.terrains) if not isinstance(t, Flat)]
         if abs(self.sim.policy_dt - FRAME_DT) > 1e-12:
             raise ConfigError(f"the simulator's policy step is {self.sim.policy_dt} s; references are at {FRAME_DT} s")
         self.terrains = list(self.sim.terrains)
         self._made_on_flat = np.array([isinstance(grounds[g], Flat) for g in ground], dtype=bool)
+        self._props_on = self.sim.props.nfree > 0
+        self._prop_used = np.zeros((len(self._prop_set), self.sim.props.nfree), dtype=bool)  # (trajectories, nfree)
+        for t, i in enumerate(self._prop_set):
+            self._prop_used[t] = self.sim.props.used(int(i))
         obs = config.observations
         self.contact_names = bank.contact_names
         self._contact_rows = SensorLayout.from_model(robot.mj_model, robot.config).contact_rows(self.contact_names)
-        self.layout: ObservationLayout = layout(obs, self.nu, len(self.contact_names))
+        self.layout: ObservationLayout = layout(obs, self.nu, len(self.contact_names), self.sim.props.nfree)
         ee_names = list(robot.config.end_effectors)
         self._ee_index = np.array([ee_names.index(e) for e in obs.end_effectors])
         self.default_pose = robot.config.default_pose.astype(np.float64)
@@ -180,8 +186,10 @@ class TrackingEnv:
         params = randomization.sample_params(self.rng, k, self.sim.nbody, self.nu, self._randomization,
                                              self._variants, self._ground[traj], self._made_on_flat[traj])
         params.kp_factor *= self.config.actions.kp_scale
+        params.props = self._prop_set[traj]
         targets = qpos[:, 7:]
-        out = self.sim.reset(worlds, qpos, qvel, targets=targets, params=params)
+        prop_pose, prop_vel = bank.prop_state(rows) if self._props_on else (None, None)
+        out = self.sim.reset(worlds, qpos, qvel, targets=targets, params=params, prop_pose=prop_pose, prop_vel=prop_vel)
         m = measure(out, self.sim.z_offset[worlds], self._ee_index, self._contact_rows)
         if self.m is None:  # first reset of every world
             self.m, self.state = m, out
@@ -237,7 +245,7 @@ class TrackingEnv:
         self._ep_reward += reward
         self._ep_terms += np.stack([terms[t] for t in self._terms], axis=1)
 
-        cause = self._causes(m, errors, ctx.kin, unstable)
+        cause = self._causes(m, errors, ctx.kin, unstable, out)
         done = cause >= 0
         truncated = cause == 0
         self.m, self.state = m, out
@@ -266,6 +274,8 @@ class TrackingEnv:
             "ref_base_ang_vel": kin["base_ang_vel"], "ref_joint_pos": kin["joint_pos"], "ref_joint_vel": kin["joint_vel"],
             "ref_ee_pos": kin["ee_pos"], "ref_contact_force": dyn["force_heading"], "ref_joint_torque": dyn["joint_torque"],
         }
+        if self._props_on:
+            values["prop_pos_error"] = self._prop_offsets(self.state, self._row).reshape(self.num_envs, -1)
         critic = fill(np.empty((self.num_envs, self.critic_dim), np.float32), self.layout.critic, values)
         noise, f = obs_cfg.noise, self.noise_factor
         if f > 0:
@@ -318,10 +328,24 @@ class TrackingEnv:
         self._push_countdown[due] = self._push_intervals(k)
         return k
 
+    def prop_error(self, out: SimStep, rows: np.ndarray) -> np.ndarray:
+        """(N,) largest distance (m) of a world's free props from their reference positions at `rows`
+        (each world's reference row)."""
+        if not self._props_on:
+            return np.zeros(self.num_envs)
+        return np.linalg.norm(self._prop_offsets(out, rows), axis=-1).max(axis=1)
+
+    def _prop_offsets(self, out: SimStep, rows: np.ndarray) -> np.ndarray:
+        """(N, nfree, 3) free props' positions minus their reference positions at `rows` (lifted by the
+        world's z offset, as the props were at reset), world axes; 0 in unused slots."""
+        ref = self.bank.prop_pose[rows, :, :3].astype(np.float64)
+        ref[..., 2] += self.sim.z_offset[:, None]
+        return np.where(self._prop_used[self.traj][..., None], out.prop_pose[..., :3] - ref, 0.0)
+
     def _causes(self, m: Measurement, errors: dict[str, np.ndarray], kin: dict[str, np.ndarray],
-                unstable: np.ndarray) -> np.ndarray:
+                unstable: np.ndarray, out: SimStep) -> np.ndarray:
         """Index into CAUSES of why each world's episode ends after this step, -1 if it goes on.
-        A world that ends for several reasons gets the last one listed (divergence wins)."""
+        A world that ends for several reasons gets the last one set below (divergence wins)."""
         t = self.config.terminations
         cause = np.full(self.num_envs, -1)
         cause[self._row >= self._last_row] = 0
@@ -335,6 +359,8 @@ class TrackingEnv:
         if t.max_xy_error:
             xy = errors["base_pos"][:, :2]
             cause[np.einsum("ij,ij->i", xy, xy) > t.max_xy_error ** 2] = 4
+        if t.max_prop_error and self._props_on:  # a box dropped or knocked off: a failure, like a fall
+            cause[self.prop_error(out, self._row) > t.max_prop_error] = 6
         cause[unstable] = 5
         return cause
 

@@ -38,6 +38,8 @@ class TrackedMotion:
     cause: str  # why the episode ended (CAUSES)
     reference_frames: int  # frames of the reference
     start_frame: int = 0  # the reference frame the episode started from (frame 0 of this motion)
+    # (T, nfree, 7) the free props' poses (the bank's slots), height relative to the start level
+    prop_pose: np.ndarray | None = None
 
     @property
     def steps(self) -> int:
@@ -48,11 +50,14 @@ class TrackedMotion:
         return self.cause != "time_out"
 
     def record(self, robot: Robot, reference: Trajectory) -> Trajectory:
-        """A trajectory record of the tracked motion (the reference's names and parameters)."""
+        """A trajectory record of the tracked motion (the reference's names, parameters and scene; its
+        free props' poses as they moved)."""
+        boxes = [p.name for p in reference.scene.props if not p.fixed]
+        poses = {} if self.prop_pose is None else {name: self.prop_pose[:, k] for k, name in enumerate(boxes)}
         return build_trajectory(
             robot, self.qpos, self.qvel, self.joint_torque, self.contact_wrench, self.contact_active,
             task=reference.task, contact_names=reference.contact_names, params=reference.params,
-            seed=reference.seed, ee_names=reference.ee_names,
+            seed=reference.seed, ee_names=reference.ee_names, scene=reference.scene, prop_poses=poses,
         )
 
 
@@ -69,7 +74,7 @@ def track(env: TrackingEnv, policy: Policy, trajectories: np.ndarray,
     env.reset_worlds(worlds, trajectories, frames)
     z0 = env.sim.z_offset
     start = env.state.rows(worlds)
-    qpos, qvel, torque, wrench, active = [start.qpos], [start.qvel], [], [], []
+    qpos, qvel, torque, wrench, active, props = [start.qpos], [start.qvel], [], [], [], [start.prop_pose]
     steps, cause = np.zeros(n, dtype=np.int64), np.full(n, -1)
     reward, terms = np.zeros(n), {name: np.zeros(n) for name in env.config.rewards.terms()}
     while (cause < 0).any():
@@ -83,6 +88,7 @@ def track(env: TrackingEnv, policy: Policy, trajectories: np.ndarray,
             cause[ended] = result.episodes.cause[running[result.episodes.worlds]]
         qpos.append(out.qpos)
         qvel.append(out.qvel)
+        props.append(out.prop_pose)
         torque.append(out.torque_mean)
         w, a = env.contact_wrenches(out)
         wrench.append(w)
@@ -91,13 +97,15 @@ def track(env: TrackingEnv, policy: Policy, trajectories: np.ndarray,
         reward[running] += result.reward[running]
         for name, value in result.terms.items():
             terms[name][running] += value[running]
-    qpos, qvel = np.stack(qpos), np.stack(qvel)
+    qpos, qvel, props = np.stack(qpos), np.stack(qvel), np.stack(props)
     torque, wrench, active = np.stack(torque), np.stack(wrench), np.stack(active)
     motions = []
     for w in range(n):
         k = steps[w]
         q = qpos[: k + 1, w].copy()
         q[:, 2] -= z0[w]
+        prop = props[: k + 1, w].copy()
+        prop[..., 2] -= z0[w]
         # step k's torques and wrenches belong to frame k; the last frame repeats them (as the record)
         last = [k - 1]
         motions.append(TrackedMotion(
@@ -107,6 +115,6 @@ def track(env: TrackingEnv, policy: Policy, trajectories: np.ndarray,
             contact_active=np.concatenate([active[:k, w], active[last, w]]),
             reward=float(reward[w]), terms={name: float(v[w]) for name, v in terms.items()},
             cause=CAUSES[cause[w]], reference_frames=int(env.bank.length[trajectories[w]]),
-            start_frame=int(frames[w]),
+            start_frame=int(frames[w]), prop_pose=prop,
         ))
     return motions

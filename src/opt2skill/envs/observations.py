@@ -2,7 +2,9 @@
 
 Critic: privileged proprioception [base position, orientation, linear and angular velocity,
 projected gravity, joint-position history, joint velocity, end effectors relative to the torso,
-action history, contact forces, joint torques, Kp, Kd] and the full reference state.
+action history, contact forces, joint torques, Kp, Kd], the full reference state and, in a scene
+with free props (boxes), each box's position error to its reference (privileged: the actor never
+sees the box, as in the paper).
 Actor: noisy proprioception [base linear and angular velocity, projected gravity, joint-position
 history, joint velocity, action history] and the partial reference [base linear and angular
 velocity, joint positions, contact forces, joint torques]. `layout` gives names, slices and sizes;
@@ -27,12 +29,13 @@ CRITIC_TERMS = (
     "base_pos", "base_quat", "base_lin_vel", "base_ang_vel", "projected_gravity", "joint_pos_history", "joint_vel",
     "ee_pos", "action_history", "contact_force", "joint_torque", "kp", "kd",
     "ref_base_pos", "ref_base_quat", "ref_base_lin_vel", "ref_base_ang_vel", "ref_joint_pos", "ref_joint_vel",
-    "ref_ee_pos", "ref_contact_force", "ref_joint_torque",
+    "ref_ee_pos", "ref_contact_force", "ref_joint_torque", "prop_pos_error",
 )
 
 
-def term_sizes(config: ObservationConfig, nu: int, ncontacts: int) -> dict[str, int]:
-    """Size of every term; `ncontacts` contacts of 3 force components each (feet, hands, elbows)."""
+def term_sizes(config: ObservationConfig, nu: int, ncontacts: int, nprops: int = 0) -> dict[str, int]:
+    """Size of every term; `ncontacts` contacts of 3 force components each (feet, hands, elbows),
+    `nprops` free props (boxes) of 3 position-error components each."""
     n, ne = config.history, len(config.end_effectors)
     return {
         "base_pos": 3, "base_quat": 4, "base_lin_vel": 3, "base_ang_vel": 3, "projected_gravity": 3,
@@ -42,6 +45,7 @@ def term_sizes(config: ObservationConfig, nu: int, ncontacts: int) -> dict[str, 
         "ref_joint_vel": nu, "ref_ee_pos": 3 * ne,
         "ref_contact_force": 3 * ncontacts if config.reference_force else 0,
         "ref_joint_torque": nu if config.reference_torque else 0,
+        "prop_pos_error": 3 * nprops,
     }
 
 
@@ -65,8 +69,8 @@ class ObservationLayout:
         return [(name, s.start, s.stop, s.stop - s.start) for name, s in getattr(self, group).items()]
 
 
-def layout(config: ObservationConfig, nu: int, ncontacts: int) -> ObservationLayout:
-    sizes = term_sizes(config, nu, ncontacts)
+def layout(config: ObservationConfig, nu: int, ncontacts: int, nprops: int = 0) -> ObservationLayout:
+    sizes = term_sizes(config, nu, ncontacts, nprops)
 
     def place(terms):
         out, start = {}, 0

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from opt2skill.data.reader import Dataset
-from opt2skill.data.record import Trajectory
+from opt2skill.data.record import FRAME_DT, Trajectory
 from opt2skill.errors import DataError
 from opt2skill.geometry import quat_to_mat, yaw_of
 from opt2skill.model.robot import Robot
@@ -43,6 +43,10 @@ class ReferenceBank:
     task: str
     xy_range: tuple[tuple[float, float], tuple[float, float]]  # extent of the base paths, for terrain
     scenes: tuple[Scene, ...]  # (n,) the scene each trajectory was made on
+    # (rows, nfree, 7) reference pose of each free prop (box) slot per row (x y z, quaternion w x y z):
+    # a trajectory's boxes in its scene's order, from the record's `prop_poses` (its scene pose where
+    # the record has none); slots its scene does not fill hold the identity at the origin.
+    prop_pose: np.ndarray
     contact_names: tuple[str, ...]  # the references' contacts (feet, hands, elbows), the order of their forces
     # False for kinematic references (IK, retargeted human motion): their torques and contact forces
     # are zeros, so only the Pos inputs may be used (`envs.config.check_reference_inputs`).
@@ -71,9 +75,11 @@ class ReferenceBank:
         first = dataset.meta(0 if subset is None else int(subset[0]))
         table = dataset.frame_table(FIELDS, dtype=np.float32, subset=subset, use_cache=use_cache)
         scenes = [dataset.meta(int(p)).scene for p in table.trajectories]
+        poses = [dataset.prop_poses(int(p)) if any(not q.fixed for q in s.props) else {}
+                 for p, s in zip(table.trajectories, scenes)]
         return cls._build(robot, dict(table.fields), table.start, table.length, table.trajectories,
                           identity.get("task", first.task), first.contact_names, first.ee_names, end_effectors,
-                          scenes, has_dynamics=first.has_dynamics, source=first.source)
+                          scenes, poses, has_dynamics=first.has_dynamics, source=first.source)
 
     @classmethod
     def from_trajectories(cls, robot: Robot, trajectories: Sequence[Trajectory], end_effectors: Sequence[str],
@@ -88,14 +94,16 @@ class ReferenceBank:
         fields = {name: np.concatenate([getattr(t, name) for t in trajectories]).astype(dtype) for name in FIELDS}
         start = np.concatenate([[0], np.cumsum(length)[:-1]])
         return cls._build(robot, fields, start, length, np.arange(len(trajectories)), first.task,
-                          first.contact_names, first.ee_names, end_effectors, [t.scene for t in trajectories], dtype,
+                          first.contact_names, first.ee_names, end_effectors, [t.scene for t in trajectories],
+                          [t.prop_poses for t in trajectories], dtype,
                           has_dynamics=all(t.has_dynamics for t in trajectories),
                           source=first.source if len({t.source for t in trajectories}) == 1 else "mixed")
 
     @classmethod
     def _build(cls, robot: Robot, f: dict[str, np.ndarray], start, length, positions, task: str,
                contact_names: Sequence[str], ee_names: Sequence[str], end_effectors: Sequence[str],
-               scenes: Sequence[Scene], dtype=np.float32, has_dynamics: bool = True,
+               scenes: Sequence[Scene], prop_poses: Sequence[dict[str, np.ndarray]], dtype=np.float32,
+               has_dynamics: bool = True,
                source: str = "to") -> ReferenceBank:
         nu, nq = robot.nu, robot.nq
         if f["qpos"].shape[1] != nq or f["joint_torque"].shape[1] != nu:
@@ -107,10 +115,6 @@ class ReferenceBank:
         if unknown or len(set(contact_names)) != len(contact_names):
             raise DataError(f"the references' contacts {list(contact_names)} must be distinct end effectors of "
                             f"robot '{robot.name}' ({list(robot.config.end_effectors)})")
-        with_props = sorted({p.name for s in scenes for p in s.props})
-        if with_props:
-            raise DataError(f"the tracking environment rebuilds the references' terrain but not their props yet; "
-                            f"the references have props {with_props}")
         missing = [e for e in end_effectors if e not in ee_names]
         if missing:
             raise DataError(f"end effectors {missing} are not in the references (they have {list(ee_names)})")
@@ -141,7 +145,8 @@ class ReferenceBank:
         xy = qpos[:, :2]
         xy_range = ((float(xy[:, 0].min()), float(xy[:, 0].max())), (float(xy[:, 1].min()), float(xy[:, 1].max())))
         return cls(kin, dyn, kin_cols, dyn_cols, np.asarray(start, dtype=np.int64), np.asarray(length, dtype=np.int64),
-                   np.asarray(positions), str(task), xy_range, tuple(scenes), tuple(contact_names),
+                   np.asarray(positions), str(task), xy_range, tuple(scenes),
+                   _prop_rows(scenes, prop_poses, np.asarray(length), dtype), tuple(contact_names),
                    bool(has_dynamics), str(source))
 
     def grounds(self) -> tuple[list[Terrain], np.ndarray]:
@@ -152,6 +157,22 @@ class ReferenceBank:
             first.setdefault(scene.terrain, scene)
         position = {terrain: i for i, terrain in enumerate(first)}
         return [s.ground for s in first.values()], np.array([position[s.terrain] for s in self.scenes], dtype=np.int64)
+
+    def prop_sets(self) -> tuple[list[tuple], np.ndarray]:
+        """The distinct prop sets of the trajectories' scenes (in order of first use) and the index
+        (n,) of each trajectory's set."""
+        sets: dict = {}
+        for scene in self.scenes:
+            sets.setdefault(scene.props, len(sets))
+        return list(sets), np.array([sets[s.props] for s in self.scenes], dtype=np.int64)
+
+    def prop_state(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Free props' poses (k, nfree, 7) and velocities (k, nfree, 6), float64, of reference rows
+        that have a next row: the linear velocity by finite difference to it, the angular zero."""
+        pose = self.prop_pose[rows].astype(np.float64)
+        vel = np.zeros((*pose.shape[:2], 6))
+        vel[..., :3] = (self.prop_pose[np.asarray(rows) + 1, :, :3] - pose[..., :3]) / FRAME_DT
+        return pose, vel
 
     def state(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """MuJoCo qpos (k, nq) and qvel (k, nv), float64, of reference rows (base linear velocity to
@@ -164,3 +185,18 @@ class ReferenceBank:
         qpos = np.concatenate([k[:, cols["base_pos"]], quat, k[:, cols["joint_pos"]]], axis=1)
         qvel = np.concatenate([lin_world, k[:, cols["base_ang_vel"]], k[:, cols["joint_vel"]]], axis=1)
         return qpos, qvel
+
+
+def _prop_rows(scenes: Sequence[Scene], poses: Sequence[dict[str, np.ndarray]], length: np.ndarray,
+               dtype) -> np.ndarray:
+    """(rows, nfree, 7) free-prop poses of stacked trajectories (`ReferenceBank.prop_pose`)."""
+    boxes = [[p for p in s.props if not p.fixed] for s in scenes]
+    out = np.zeros((int(length.sum()), max(map(len, boxes), default=0), 7), dtype=dtype)
+    out[..., 3] = 1.0
+    row = 0
+    for free, pose, n in zip(boxes, poses, length):
+        for k, box in enumerate(free):
+            (g,) = box.geoms()
+            out[row:row + n, k] = pose[box.name] if box.name in pose else np.r_[g.centre, g.quat]
+        row += n
+    return out

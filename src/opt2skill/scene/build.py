@@ -10,7 +10,6 @@ keep their places at the front and a prop's free joint follows (`prop_qpos`).
 from __future__ import annotations
 
 import mujoco
-import numpy as np
 
 from opt2skill.model.mujoco_model import GROUND_CONAFFINITY, GROUND_CONTYPE
 from opt2skill.model.robot import Robot
@@ -58,11 +57,9 @@ def add_prop(spec: mujoco.MjSpec, prop: Prop) -> None:
         return
     (g,) = prop.geoms()
     # The robot's MJCF compiles with inertiafromgeom="false": the box's inertia is given, uniform.
-    a, b, c = 2 * g.half
-    inertia = prop.mass / 12 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
     # ipos must be set: unset (NaN) it compiles to the body's own position, off the centre.
     body = spec.worldbody.add_body(name=prop.name, pos=g.centre, quat=g.quat, mass=prop.mass, ipos=[0.0, 0.0, 0.0],
-                                   inertia=inertia, explicitinertial=True)
+                                   inertia=prop.inertia, explicitinertial=True)
     body.add_freejoint(name=f"{prop.name}/free")
     body.add_geom(name=prop.name, size=g.half, **look)
 

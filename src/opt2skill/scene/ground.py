@@ -88,7 +88,7 @@ class TerrainScene:
             self._place_box(model, TOP, *terrain.top())
             shown |= {INCLINE, TOP}
         if shown & self._boxes:
-            _refit_world_tree(model)
+            refit_tree(model)
         for name, gid in self._ids.items():
             active = name in shown
             model.geom_contype[gid] = GROUND_CONTYPE if active else 0
@@ -99,25 +99,30 @@ class TerrainScene:
             model.geom_rgba[gid] = rgba if active else 0.0
 
     def _place_box(self, model, name, centre, half, quat=(1.0, 0.0, 0.0, 0.0)) -> None:
-        gid = self._ids[name]
-        model.geom_pos[gid] = centre
-        model.geom_quat[gid] = quat
-        model.geom_size[gid] = half
-        model.geom_aabb[gid] = np.r_[0.0, 0.0, 0.0, half]
-        model.geom_rbound[gid] = np.linalg.norm(half)
-        # Compiled at the origin, the box was marked as sharing its body's frame, which would make
-        # MuJoCo ignore geom_pos and geom_quat.
-        model.geom_sameframe[gid] = mujoco.mjtSameFrame.mjSAMEFRAME_NONE
+        place_box(model, self._ids[name], centre, half, quat)
 
 
-def _refit_world_tree(model: mujoco.MjModel) -> None:
-    """Recompute the world body's bounding-volume tree from its geoms' current poses and boxes.
+def place_box(model: mujoco.MjModel, gid: int, centre, half, quat=(1.0, 0.0, 0.0, 0.0)) -> None:
+    """Pose and size box geom `gid` in its body's frame, with the bounds collision culling uses."""
+    model.geom_pos[gid] = centre
+    model.geom_quat[gid] = quat
+    model.geom_size[gid] = half
+    model.geom_aabb[gid] = np.r_[0.0, 0.0, 0.0, half]
+    model.geom_rbound[gid] = np.linalg.norm(half)
+    # Compiled at the origin, the box was marked as sharing its body's frame, which would make
+    # MuJoCo ignore geom_pos and geom_quat.
+    model.geom_sameframe[gid] = mujoco.mjtSameFrame.mjSAMEFRAME_NONE
+
+
+def refit_tree(model: mujoco.MjModel, body: int = 0) -> None:
+    """Recompute a body's (the world's by default) bounding-volume tree from its geoms' current
+    poses and boxes.
 
     MuJoCo builds the tree at compile time; its midphase prunes geom pairs with it, so boxes moved
     afterwards need it refitted (same tree, new volumes: leaves bound their geom, parents their
     children; children come after their parent in the array).
     """
-    adr, num = model.body_bvhadr[0], model.body_bvhnum[0]
+    adr, num = model.body_bvhadr[body], model.body_bvhnum[body]
     aabb, rot = model.bvh_aabb[adr:adr + num], np.zeros(9)
     for node in range(num - 1, -1, -1):
         geom = model.bvh_nodeid[adr + node]

@@ -97,6 +97,12 @@ class Box:
     def geoms(self) -> list[Geom]:
         return [Geom(self.name, np.array(self.pos, float), np.array(self.size, float) / 2, _yaw_quat(self.yaw))]
 
+    @property
+    def inertia(self) -> np.ndarray:
+        """Principal moments (3,) about the centre, uniform density, along the box's own axes."""
+        a, b, c = self.size
+        return self.mass / 12 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
+
     def surfaces(self) -> list[Surface]:
         """The six faces, named by the box's own axes: front (+x), back, left (+y), right, top, bottom."""
         rot, half, centre = _yaw_matrix(self.yaw), np.array(self.size, float) / 2, np.array(self.pos, float)

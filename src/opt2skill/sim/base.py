@@ -16,6 +16,7 @@ import numpy as np
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
+from opt2skill.scene.slots import PropSlots
 from opt2skill.scene.terrain import Terrain
 from opt2skill.sim.params import NominalModel, WorldParams
 
@@ -60,8 +61,8 @@ class SimStep:
     """
 
     time: np.ndarray  # (N,) END, seconds since the world's reset
-    qpos: np.ndarray  # (N, nq) END, MuJoCo layout
-    qvel: np.ndarray  # (N, nv) END, MuJoCo layout (base linear velocity in the world frame)
+    qpos: np.ndarray  # (N, nq) END, the robot's MuJoCo layout (props are `prop_pose`)
+    qvel: np.ndarray  # (N, nv) END, the robot's MuJoCo layout (base linear velocity in the world frame)
     imu_quat: np.ndarray  # (N, 4) END, IMU orientation in the world, w x y z
     imu_gyro: np.ndarray  # (N, 3) END, angular velocity, IMU frame
     imu_linvel: np.ndarray  # (N, 3) END, linear velocity, IMU frame
@@ -80,6 +81,8 @@ class SimStep:
     point_force_mean: np.ndarray  # (N, npoint, 3) MEAN
     point_found: np.ndarray  # (N, npoint) LAST, number of contact points of each
     unstable: np.ndarray  # (N,) bool: the world diverged this step; it was held, reset it
+    prop_pose: np.ndarray  # (N, nfree, 7) END, free props' position and quaternion (w x y z), world
+    prop_vel: np.ndarray  # (N, nfree, 6) END, their linear (world) and angular (body) velocity
 
     def rows(self, index: np.ndarray) -> SimStep:
         return SimStep(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
@@ -98,6 +101,9 @@ class BatchedSim(ABC):
     nbody: int  # bodies of the model, world included (the length of WorldParams.mass_scale rows)
     nu: int  # actuators = actuated joints
     terrains: tuple[Terrain, ...]  # a world's terrain is WorldParams.terrain, an index into these
+    # A world's props are WorldParams.props, an index into `props.sets` (scene/slots.py); a backend
+    # without props has the one empty set.
+    props: PropSlots = PropSlots()
 
     @property
     def nsubstep(self) -> int:
@@ -134,8 +140,12 @@ class BatchedSim(ABC):
         qvel: np.ndarray,
         targets: np.ndarray | None = None,
         params: WorldParams | None = None,
+        prop_pose: np.ndarray | None = None,
+        prop_vel: np.ndarray | None = None,
     ) -> SimStep:
-        """Put `worlds` (k,) in states (k, nq), (k, nv), standing on their terrain; outputs at that instant."""
+        """Put `worlds` (k,) in robot states (k, nq), (k, nv), standing on their terrain, and their free
+        props at `prop_pose` (k, nfree, 7) with `prop_vel` (k, nfree, 6) (default: their scene poses,
+        at rest; lifted with the robot); outputs at that instant."""
 
     @abstractmethod
     def step(self, targets: np.ndarray) -> SimStep:

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
+from opt2skill.scene.props import Prop
 from opt2skill.scene.terrain import Flat, Terrain
 from opt2skill.sim.base import BatchedSim, SimConfig
 
@@ -50,13 +51,18 @@ def check_device(device: str) -> None:
 
 
 def make_sim(robot: Robot, nworld: int, config: SimConfig, terrains: Sequence[Terrain] = (Flat(),),
-             device: str = "cpu") -> BatchedSim:
-    """The batched simulator of `device` (see the module docstring)."""
+             device: str = "cpu", prop_sets: Sequence[Sequence[Prop]] = ((),)) -> BatchedSim:
+    """The batched simulator of `device` (see the module docstring). Only C MuJoCo simulates props
+    (`prop_sets`, scene/slots.py); the Warp backend refuses them."""
+    props = sorted({p.name for s in prop_sets for p in s})
+    if props and device != "cpu":
+        raise ConfigError(f"--device {device}: the Warp backend does not simulate props yet, and these references' "
+                          f"scenes have props {props}; use --device cpu (C MuJoCo) for them (docs/sim.md)")
     check_device(device)
     if device == "cpu":
         from opt2skill.sim.mujoco_sim import MujocoBatchedSim
 
-        return MujocoBatchedSim(robot, nworld, config, terrains=terrains)
+        return MujocoBatchedSim(robot, nworld, config, terrains=terrains, prop_sets=prop_sets)
     from opt2skill.sim.warp_sim import WarpBatchedSim
 
     return WarpBatchedSim(robot, nworld, config, terrains=terrains, device="cpu" if device == "warp-cpu" else device)

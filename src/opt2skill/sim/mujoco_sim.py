@@ -1,6 +1,6 @@
 """The C MuJoCo backend: N worlds stepped by `mujoco.rollout` on a persistent thread pool.
 
-Each world has its own MjModel copy (its randomized parameters and terrain); each pool thread has
+Each world has its own MjModel copy (its randomized parameters, terrain and props); each pool thread has
 one MjData. A policy step is one `rollout` call of S physics steps for all worlds, with the
 per-physics-step PD targets of every world (action delay included) as its open-loop controls. The
 servos compute u = Kp (q* - q) - Kd qd, clipped to the torque limit, at every physics step.
@@ -22,6 +22,8 @@ from mujoco import rollout
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.scene.ground import TerrainScene
+from opt2skill.scene.props import Prop
+from opt2skill.scene.slots import PropSlots
 from opt2skill.scene.terrain import Flat, Terrain
 from opt2skill.sim.base import HostBookkeeping, SimConfig, SimStep, checked_array
 from opt2skill.sim.delay import ActionDelay
@@ -41,6 +43,7 @@ class MujocoBatchedSim(HostBookkeeping):
         nworld: int,
         config: SimConfig | None = None,
         terrains: Sequence[Terrain] = (Flat(),),
+        prop_sets: Sequence[Sequence[Prop]] = ((),),
     ):
         if not (isinstance(nworld, (int, np.integer)) and nworld >= 1):
             raise ConfigError(f"number of worlds must be a positive integer, got {nworld}")
@@ -48,10 +51,13 @@ class MujocoBatchedSim(HostBookkeeping):
         self.config = config or SimConfig()
         self._scene = TerrainScene(terrains)
         self.terrains = self._scene.terrains
+        self.props = PropSlots(prop_sets)
         spec = robot.mj_spec()
         self._scene.add_to(spec)
+        self.props.add_to(spec)
         base = robot.compile(spec)
         self._scene.bind(base)
+        self.props.bind(base, robot.nq)
         if self.config.physics_dt is not None:
             base.opt.timestep = self.config.physics_dt
         self._dt = float(base.opt.timestep)
@@ -71,8 +77,13 @@ class MujocoBatchedSim(HostBookkeeping):
         self._state = np.zeros((self.nworld, nstate))
         self._out_state = np.zeros((self.nworld, S, nstate))
         self._out_sensor = np.zeros((self.nworld, S, base.nsensordata))
-        self._qpos = slice(1, 1 + base.nq)  # FULLPHYSICS starts with time, qpos, qvel
-        self._qvel = slice(1 + base.nq, 1 + base.nq + base.nv)
+        # FULLPHYSICS starts with time, qpos, qvel; the robot's come first in each, then the props'.
+        nq, nv = robot.nq, robot.mj_model.nv
+        self._qpos = slice(1, 1 + nq)
+        self._qvel = slice(1 + base.nq, 1 + base.nq + nv)
+        self._prop_qpos = slice(1 + nq, 1 + base.nq)
+        self._prop_qvel = slice(1 + base.nq + nv, 1 + base.nq + base.nv)
+        self._all_qvel = slice(1 + base.nq, 1 + base.nq + base.nv)
         self._delay = ActionDelay(self.nworld, base.nu, S, self._max_delay_steps)
         self._params = WorldParams.nominal(self.nworld, base.nbody, base.nu)
         self._z_offset = np.zeros(self.nworld)
@@ -81,8 +92,8 @@ class MujocoBatchedSim(HostBookkeeping):
 
         everyone = np.arange(self.nworld)
         self.set_params(everyone, self._params)
-        stand = np.broadcast_to(robot.stand_qpos, (self.nworld, base.nq))
-        self._last = self.reset(everyone, stand, np.zeros((self.nworld, base.nv)))
+        stand = np.broadcast_to(robot.stand_qpos, (self.nworld, nq))
+        self._last = self.reset(everyone, stand, np.zeros((self.nworld, nv)))
 
     # ---------------------------------------------------------------- interface
 
@@ -94,10 +105,15 @@ class MujocoBatchedSim(HostBookkeeping):
     def set_params(self, worlds: np.ndarray, params: WorldParams) -> None:
         worlds = self.check_worlds(worlds)
         m = self.models[0]
-        p = params.checked(len(worlds), m.nbody, m.nu, self.config.max_delay, len(self.terrains))
+        p = params.checked(len(worlds), m.nbody, m.nu, self.config.max_delay, len(self.terrains),
+                           len(self.props.sets))
         for row, w in enumerate(worlds):  # per reset, never per step
             model = self.models[w]
-            self._nominal.apply(model, p, row)
+            if self.props:
+                self._nominal.apply(model, p, row, lambda mm: self.props.apply(mm, int(p.props[row]),
+                                                                               float(p.friction_scale[row])))
+            else:
+                self._nominal.apply(model, p, row)
             self._scene.apply(model, int(p.terrain[row]))
         self._delay.set_delay(worlds, np.rint(p.delay / self._dt).astype(int))
         self._params.assign(worlds, p)
@@ -110,22 +126,26 @@ class MujocoBatchedSim(HostBookkeeping):
         qvel: np.ndarray,
         targets: np.ndarray | None = None,
         params: WorldParams | None = None,
+        prop_pose: np.ndarray | None = None,
+        prop_vel: np.ndarray | None = None,
     ) -> SimStep:
-        m = self.models[0]
-        worlds, qpos, qvel, targets = self.checked_reset(worlds, qpos, qvel, targets, m.nq, m.nv)
+        nq, nv = self.robot.nq, self.robot.mj_model.nv
+        worlds, qpos, qvel, targets = self.checked_reset(worlds, qpos, qvel, targets, nq, nv)
         k = len(worlds)
         if params is not None:
             self.set_params(worlds, params)
+        prop_q, prop_v = self._prop_states(worlds, prop_pose, prop_vel)
         d = self._scratch
-        sensors = np.zeros((k, 1, m.nsensordata))
+        sensors = np.zeros((k, 1, self.models[0].nsensordata))
         for row, w in enumerate(worlds):  # per reset, never per step
             model = self.models[w]
             mujoco.mj_resetData(model, d)  # time 0, act and history cleared
-            d.qpos[:] = qpos[row]
-            d.qvel[:] = qvel[row]
+            d.qpos[:nq], d.qpos[nq:] = qpos[row], prop_q[row]
+            d.qvel[:nv], d.qvel[nv:] = qvel[row], prop_v[row]
             self._z_offset[w] = self._lift_onto_terrain(model, d, w)
             d.qpos[2] += self._z_offset[w]
-            d.ctrl[:] = targets[row] if targets is not None else d.qpos[7:]
+            d.qpos[nq + 2::7] += self._z_offset[w] * self.props.used(int(self._params.props[w]))  # props held or set down
+            d.ctrl[:] = targets[row] if targets is not None else d.qpos[7:nq]
             mujoco.mj_forward(model, d)
             mujoco.mj_getState(model, d, self._state[w], FULLPHYSICS)
             sensors[row, 0] = d.sensordata
@@ -133,7 +153,7 @@ class MujocoBatchedSim(HostBookkeeping):
         state = self._state[worlds]
         out = self._decoder.decode(
             state[:, 0], state[:, self._qpos], state[:, self._qvel], state[:, self._qvel], sensors, 0.0, self.policy_dt,
-            self._gravity[worlds],
+            self._gravity[worlds], *self._prop_outputs(state),
         )
         if self._last is not None:
             self._last.assign(worlds, out)
@@ -152,7 +172,7 @@ class MujocoBatchedSim(HostBookkeeping):
         self._state[:] = end
         out = self._decoder.decode(
             end[:, 0].copy(), end[:, self._qpos].copy(), end[:, self._qvel].copy(), start[:, self._qvel],
-            self._out_sensor, self._dt, self.policy_dt, self._gravity,
+            self._out_sensor, self._dt, self.policy_dt, self._gravity, *self._prop_outputs(end),
         )
         bad = self._diverged(start[:, 0], end)
         if bad.any():
@@ -178,9 +198,27 @@ class MujocoBatchedSim(HostBookkeeping):
         expected = time_start + self.nsubstep * self._dt
         with np.errstate(invalid="ignore", over="ignore"):
             ok = np.abs(end[:, 0] - expected) <= 0.5 * self._dt
-            ok &= np.abs(end[:, self._qvel]).max(axis=1) <= self.config.max_speed  # False for NaN
+            ok &= np.abs(end[:, self._all_qvel]).max(axis=1) <= self.config.max_speed  # False for NaN
             ok &= np.isfinite(end.sum(axis=1) + self._out_sensor.sum(axis=(1, 2)))  # sums keep NaN and inf
         return ~ok
+
+    def _prop_states(self, worlds: np.ndarray, pose, vel) -> tuple[np.ndarray, np.ndarray]:
+        """qpos (k, 7 nfree) and qvel (k, 6 nfree) of the free props of `worlds`: the given poses
+        (k, nfree, 7) and velocities (k, nfree, 6) in the slots their prop sets use (each set's rest
+        poses and zero velocity when not given), every unused slot parked at rest."""
+        k, n = len(worlds), self.props.nfree
+        sets = self._params.props[worlds]
+        rest = np.stack([self.props.rest_poses(int(i)) for i in sets]) if n else np.zeros((k, 0, 7))
+        used = np.stack([self.props.used(int(i)) for i in sets]) if n else np.zeros((k, 0), dtype=bool)
+        q = rest if pose is None else np.where(used[..., None], checked_array("prop_pose", pose, (k, n, 7)), rest)
+        q[..., 3:] /= np.linalg.norm(q[..., 3:], axis=-1, keepdims=True)
+        v = np.zeros((k, n, 6)) if vel is None else checked_array("prop_vel", vel, (k, n, 6)) * used[..., None]
+        return q.reshape(k, 7 * n), v.reshape(k, 6 * n)
+
+    def _prop_outputs(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Free props' poses (N, nfree, 7) and velocities (N, nfree, 6) from full states."""
+        n, k = self.props.nfree, len(state)
+        return state[:, self._prop_qpos].reshape(k, n, 7).copy(), state[:, self._prop_qvel].reshape(k, n, 6).copy()
 
     def _hold(self, bad: np.ndarray, start: np.ndarray, out: SimStep) -> None:
         """Isolate diverged worlds: back to their state before the step, outputs of that state."""

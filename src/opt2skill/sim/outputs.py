@@ -44,13 +44,16 @@ class OutputDecoder:
         dt: float,
         duration: float,
         gravity: np.ndarray,
+        prop_pose: np.ndarray | None = None,
+        prop_vel: np.ndarray | None = None,
     ) -> SimStep:
         """Outputs from the post-step state and the readings (N, S, nsensordata) of the S physics steps.
 
         `dt` carries end-effector positions from the start of the last step to the state's instant
         (the physics step, or 0 when the readings were taken at that state); `duration` is the
         policy step (for the mean joint acceleration); `gravity` (N, 3) each world's gravity
-        (MuJoCo's frame accelerations exclude it).
+        (MuJoCo's frame accelerations exclude it); `prop_pose` (N, nfree, 7) and `prop_vel`
+        (N, nfree, 6) the free props' state (none by default). `qpos`, `qvel`: the robot's only.
         """
         lay = self.layout
         quat, w_body = qpos[:, 3:7], qvel[:, 3:6]
@@ -88,6 +91,8 @@ class OutputDecoder:
             point_force_mean=point.sum(axis=1) / point.shape[1],
             point_found=lay.point_found(last),
             unstable=np.zeros(len(time), dtype=bool),
+            prop_pose=np.zeros((len(time), 0, 7)) if prop_pose is None else prop_pose,
+            prop_vel=np.zeros((len(time), 0, 6)) if prop_vel is None else prop_vel,
         )
 
 

@@ -17,7 +17,7 @@ world's own MjModel copy from the stored nominal values, so repeated resets neve
   enforced on the command (Digit's LLAPI limits are command limits). The torque sensors report the
   torque applied to the joint, `s` included.
 - `delay` (seconds, applied rounded to whole physics steps), `terrain` (index into the
-  simulator's terrains) and `lift` (whether a reset lifts the given state onto the terrain) are
+  simulator's terrains), `props` (index into the simulator's prop sets, `scene.slots`) and `lift` (whether a reset lifts the given state onto the terrain) are
   applied by the simulator itself, not through the model.
 """
 
@@ -56,6 +56,7 @@ class WorldParams:
     # (k,) bool: a reset lifts the given state onto the terrain (a state made on the flat floor);
     # False keeps its height (a state made on this very terrain, e.g. a reference on its stairs).
     lift: np.ndarray
+    props: np.ndarray  # (k,) int, index into the simulator's prop sets (scene/slots.py)
 
     @classmethod
     def nominal(cls, k: int, nbody: int, nu: int) -> WorldParams:
@@ -69,6 +70,7 @@ class WorldParams:
             delay=np.zeros(k),
             terrain=np.zeros(k, dtype=int),
             lift=np.ones(k, dtype=bool),
+            props=np.zeros(k, dtype=int),
         )
 
     def __len__(self) -> int:
@@ -81,7 +83,7 @@ class WorldParams:
         for f in fields(self):
             getattr(self, f.name)[index] = getattr(other, f.name)
 
-    def checked(self, k: int, nbody: int, nu: int, max_delay: float, nterrain: int) -> WorldParams:
+    def checked(self, k: int, nbody: int, nu: int, max_delay: float, nterrain: int, nprops: int = 1) -> WorldParams:
         """A copy with every field broadcast to its full shape; ConfigError names any bad value.
 
         Per-joint and per-body fields accept (k, n), (n,), (k, 1) or a scalar.
@@ -95,9 +97,10 @@ class WorldParams:
                 value = np.broadcast_to(value, shape).copy()
             except ValueError:
                 raise ConfigError(f"world parameter '{f.name}' has shape {value.shape}; expected {shape}") from None
-            if f.name == "terrain":
-                ok = (np.mod(value, 1) == 0) & (value >= 0) & (value <= nterrain - 1)
-                allowed = f"terrain indices 0 to {nterrain - 1}"
+            if f.name in ("terrain", "props"):
+                n = nterrain if f.name == "terrain" else nprops
+                ok = (np.mod(value, 1) == 0) & (value >= 0) & (value <= n - 1)
+                allowed = f"{f.name} indices 0 to {n - 1}"
             elif f.name == "lift":
                 ok = (value == 0) | (value == 1)
                 allowed = "true or false"
@@ -110,7 +113,7 @@ class WorldParams:
                 allowed = f"[{lo:g}, {hi:g}]"
             if not ok.all():
                 raise ConfigError(f"world parameter '{f.name}' has {value[~ok].flat[0]}; allowed: {allowed}")
-            out[f.name] = value.astype({"terrain": int, "lift": bool}.get(f.name, float))
+            out[f.name] = value.astype({"terrain": int, "props": int, "lift": bool}.get(f.name, float))
         return WorldParams(**out)
 
 
@@ -150,8 +153,9 @@ class NominalModel:
         self.forcerange = model.actuator_forcerange.copy()
         self._scratch = mujoco.MjData(model)
 
-    def apply(self, model: mujoco.MjModel, p: WorldParams, row: int) -> None:
-        """Set world `row` of `p` on `model`, from the nominal values."""
+    def apply(self, model: mujoco.MjModel, p: WorldParams, row: int, then=None) -> None:
+        """Set world `row` of `p` on `model`, from the nominal values; `then(model)`, if given, changes
+        more (e.g. the props' masses) before the derived constants are refreshed."""
         mass = p.mass_scale[row].copy()
         mass[0] = 1.0
         model.body_mass[:] = self.body_mass * mass
@@ -165,6 +169,8 @@ class NominalModel:
         model.actuator_biasprm[:, 1] = -kp
         model.actuator_biasprm[:, 2] = -kd
         model.actuator_forcerange[:] = self.forcerange * strength[:, None]
+        if then is not None:
+            then(model)
         mujoco.mj_setConst(model, self._scratch)
 
     def gains(self, p: WorldParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -154,7 +154,11 @@ class WarpBatchedSim(HostBookkeeping):
         qvel: np.ndarray,
         targets: np.ndarray | None = None,
         params: WorldParams | None = None,
+        prop_pose: np.ndarray | None = None,
+        prop_vel: np.ndarray | None = None,
     ) -> SimStep:
+        if any(x is not None and np.size(x) for x in (prop_pose, prop_vel)):
+            raise ConfigError("the Warp backend simulates no props (docs/sim.md); it has no prop poses to set")
         worlds, qpos, qvel, targets = self.checked_reset(worlds, qpos, qvel, targets, self.model.nq, self.model.nv)
         k = len(worlds)
         if params is not None:

@@ -43,7 +43,7 @@ from opt2skill.trajopt.posture import Posture
 from opt2skill.trajopt.receding import HoldGuess, solve_receding
 from opt2skill.trajopt.settings import ContactSettings, SolverSettings
 from opt2skill.trajopt.skills.locomotion import foot_contact, stand_footholds
-from opt2skill.trajopt.skills.manipulation import HandPath, grasp_contacts, held_object_forces
+from opt2skill.trajopt.skills.manipulation import HandPath, grasp_contacts, held_object_forces, held_object_poses
 from opt2skill.trajopt.skills.stride_guess import RecedingSettings
 from opt2skill.trajopt.solver import Solution
 from opt2skill.trajopt.task_config import TaskConfig
@@ -284,6 +284,8 @@ class BoxPickupTask(PhaseTask):
 
     def complete_frames(self, plan: Plan, problem: Problem, frames: Frames, knots: dict) -> Frames:
         params = plan.context
+        frames.prop_poses = {"box": _box_poses(self.robot, plan.scene.prop("box"), self.box_centres(params)[1],
+                                               problem, frames)}
         if params["box_mass"] > 0:
             mu = self.robot.config.friction_coefficient * self.config.contact.friction_scale
             held_object_forces(self.robot, problem, frames, knots, HANDS, params["box_mass"], mu)
@@ -335,6 +337,15 @@ def expert_box_pose(robot, traj: Trajectory, box: str) -> tuple[np.ndarray, np.n
         replayer.full()
     body = mujoco.mj_name2id(replayer.model, mujoco.mjtObj.mjOBJ_BODY, box)
     return replayer.data.xpos[body].copy(), replayer.data.xquat[body].copy()
+
+
+def _box_poses(robot, box: Box, target: np.ndarray, problem: Problem, frames: Frames) -> np.ndarray:
+    """The box's reference poses (T, 7): on its board until both hands touch it, then with the hands
+    until they let go, then on the target board at `target` (its centre)."""
+    hands = [list(problem.contact_names).index(h) for h in HANDS]
+    (geom,) = box.geoms()
+    return held_object_poses(robot, frames.q, frames.active[:, hands].all(axis=1), HANDS,
+                             np.r_[geom.centre, geom.quat], put=np.r_[target, geom.quat])
 
 
 def _hand_radius(robot) -> float:

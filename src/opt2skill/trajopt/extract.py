@@ -87,4 +87,5 @@ def to_trajectory(
         provenance=provenance,
         knots=knots,
         scene=scene,
+        prop_poses=frames.prop_poses,
     )

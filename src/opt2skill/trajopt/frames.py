@@ -16,7 +16,7 @@ Both return world-axis wrenches on the robot at each contact point (the contact 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable
 
 import crocoddyl
@@ -39,6 +39,9 @@ class Frames:
     tau: np.ndarray  # (T, nu)
     wrench: np.ndarray  # (T, nc, 6) on the robot at each contact point, world axes
     active: np.ndarray  # (T, nc) bool
+    # Free props' reference poses, name -> (T, 7) (x y z, quaternion w x y z), filled by the task
+    # (`PhaseTask.complete_frames`); the record's `prop_poses`.
+    prop_poses: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def contact_wrenches(data, problem: Problem, node_contacts: tuple[str, ...], out: np.ndarray) -> None:

@@ -132,3 +132,38 @@ def _carried_frames(problem: Problem, n_frames: int) -> np.ndarray:
             k0 = int(round(node.time / FRAME_DT))
             out[k0 : k0 + int(round(node.dt / FRAME_DT))] = True
     return out
+
+
+def held_object_poses(robot: Robot, q: np.ndarray, held: np.ndarray, hands: tuple[str, str],
+                      rest: np.ndarray, put: np.ndarray | None = None) -> np.ndarray:
+    """(T, 7) reference pose (x y z, quaternion w x y z) of an object two hands pick up and put down.
+
+    It rests at `rest` (7,) until the first frame of `held` (T,) bool, follows the hands rigidly from
+    there to the last held frame (its pose in the hands' frame fixed at the grasp instant), and rests
+    at `put` (7,) afterwards (where it was at the release when `put` is None). The hands' frame: origin between the hand sites, y from the second
+    hand to the first, z as close to world up as that allows. `q` (T, nq): Pinocchio configurations.
+    """
+    rest = np.asarray(rest, dtype=float)
+    out = np.tile(rest, (len(q), 1))
+    rows = np.flatnonzero(held)
+    if not len(rows):
+        return out
+    first, last = int(rows[0]), int(rows[-1])
+    pm, pd = robot.pin_model, robot.pin_model.createData()
+    fids = [robot.pin_frame_id(robot.config.end_effectors[h]) for h in hands]
+    origin, rot = np.zeros((last - first + 1, 3)), np.zeros((last - first + 1, 3, 3))
+    for r, k in enumerate(range(first, last + 1)):
+        pin.framesForwardKinematics(pm, pd, q[k])
+        a, b = (pd.oMf[f].translation for f in fids)
+        y = (a - b) / np.linalg.norm(a - b)
+        x = np.cross(y, [0.0, 0.0, 1.0])
+        x /= np.linalg.norm(x)
+        origin[r], rot[r] = (a + b) / 2, np.column_stack([x, y, np.cross(x, y)])
+    rest_rot = pin.Quaternion(*rest[3:]).toRotationMatrix()  # Pinocchio's constructor takes w, x, y, z
+    local_pos = rot[0].T @ (rest[:3] - origin[0])
+    local_rot = rot[0].T @ rest_rot
+    for r, k in enumerate(range(first, last + 1)):
+        quat = pin.Quaternion(rot[r] @ local_rot).coeffs()  # x, y, z, w
+        out[k] = np.r_[origin[r] + rot[r] @ local_pos, quat[3], quat[:3]]
+    out[last + 1:] = out[last] if put is None else put
+    return out
