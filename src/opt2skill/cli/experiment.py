@@ -48,6 +48,7 @@ def table3(
                                "clips); the last --n-test files are held out."),
     to_ablation: str = typer.Option(None, "--to-ablation", help="The TO policies' inputs (pos, pos_f, pos_t, pos_f_t)."),
     seed: int = typer.Option(None, help="Seed of the training references and training; held-out references use seed + 1."),
+    device: str = typer.Option(None, help="Training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp on a GPU)."),
     workers: int = typer.Option(None, min=0, help="Generation processes (0: every core)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
@@ -62,5 +63,5 @@ def table3(
         num_envs=num_envs, histories=tuple(int(h) for h in hist) if hist is not None else None,
         stairs=_numbers(stairs, "--stairs"), slopes=_numbers(slopes, "--slopes"), sweep_trials=sweep_trials,
         sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
-        workers=workers))
+        workers=workers, device=device))
     run_table3(settings, out, progress=not quiet)

@@ -43,6 +43,7 @@ class ExperimentSettings:
     seed: int = 0  # training references' seed; held-out ones use seed + 1
     workers: int = 0  # generation processes (0: every core)
     human: str | None = None  # folder of AMASS .npz / BVH clips; None: constructed clips
+    device: str = "cpu"  # training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp), as `train --device`
 
     def check(self) -> None:
         problems = []
@@ -65,6 +66,9 @@ class ExperimentSettings:
             problems.append(f"--human {self.human} is not a folder of .npz or .bvh clips")
         if problems:
             raise ConfigError("; ".join(problems))
+        from opt2skill.sim.devices import check_device
+
+        check_device(self.device)  # e.g. cuda without a GPU: said before hours of data generation
 
     def identity(self) -> dict[str, Any]:
         """What the experiment's outputs depend on (not `workers`: it changes speed, not results)."""

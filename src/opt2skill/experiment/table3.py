@@ -98,7 +98,8 @@ def _train(s: ExperimentSettings, out: Path, key: str, source: str, history: int
         raise Unavailable(f"no training references ({record['result']['reason']})")
     ablation = s.to_ablation if source == "to" else "pos"  # kinematic records carry no torques or forces
     request = session.TrainRequest(dataset=Path(record["result"]["dataset"]), out=run_dir(out, key), steps=s.train_steps,
-                                   num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=COMMAND)
+                                   num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=COMMAND,
+                                   device=s.device)
     start = time.perf_counter()
     result = session.train(request, progress=progress, announce=lambda line: console.print(line, highlight=False))
     elapsed = time.perf_counter() - start
