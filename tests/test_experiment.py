@@ -112,3 +112,20 @@ def test_table_pairs_to_and_ik_by_index_and_tests_human_unpaired():
     md = table.markdown()
     assert "smoke result" in md and "not available: no training references" in md and "*paper: IK-data*" in md
     assert [r.report for r in table.history_rows] == [to, None]
+
+
+def test_a_human_folder_is_split_into_training_and_held_out_clips(tmp_path):
+    from opt2skill.experiment.sources import build, human_files
+    from opt2skill.experiment.steps import Unavailable
+    from opt2skill.retarget.synthetic import write_walking_clips
+
+    clips = write_walking_clips(tmp_path / "amass", 5, 0, (0.5, 1.0), (0.12, 0.16), 2.0, 1.0)
+    (tmp_path / "amass" / "notes.txt").write_text("not a clip")
+    s = resolve("quick", {"human": str(tmp_path / "amass"), "n_test": 2})
+    assert human_files(s, tmp_path, "train", 3, 0) == clips[:3]
+    assert human_files(s, tmp_path, "test", 2, 1) == clips[3:]
+    few = resolve("quick", {"human": str(tmp_path / "amass"), "n_test": 5})
+    with pytest.raises(Unavailable, match="human train: no clips .*has 5 files; 5 are held out"):
+        build("human", "train", few, tmp_path / "out", progress=False)
+    with pytest.raises(ConfigError, match="--human .* is not a folder"):
+        resolve("quick", {"human": str(tmp_path / "missing")})
