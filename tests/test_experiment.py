@@ -73,6 +73,8 @@ def test_bad_setting_is_one_clear_error(tmp_path):
     assert not (tmp_path / "x").exists()
     with pytest.raises(ConfigError, match="--n-train and --n-test must be >= 1"):
         resolve("quick", {"n_train": 0})
+    with pytest.raises(ConfigError, match="--to-ablation must be one of pos, pos_f, pos_t, pos_f_t, got 'torque'"):
+        resolve("quick", {"to_ablation": "torque"})
     with pytest.raises(ConfigError, match="history 10 must be one of --histories"):
         resolve("quick", {"histories": (0, 5)})
 
@@ -84,6 +86,12 @@ def test_a_folder_of_another_experiment_or_other_files_is_refused(tmp_path):
         claim_folder(tmp_path / "a", resolve("quick", {"n_train": 5}))
     with pytest.raises(ConfigError, match="holds another experiment .*setting: 'quick' there, 'full' now"):
         claim_folder(tmp_path / "a", resolve("full"))
+    older = json.loads((tmp_path / "a" / "experiment.json").read_text())
+    del older["device"]  # a folder made before a setting existed: that setting counts as its default
+    (tmp_path / "a" / "experiment.json").write_text(json.dumps(older))
+    claim_folder(tmp_path / "a", resolve("quick"))
+    with pytest.raises(ConfigError, match="to_ablation: 'pos_f_t' there, 'pos' now"):
+        claim_folder(tmp_path / "a", resolve("quick", {"to_ablation": "pos"}))
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "notes.txt").write_text("mine")
     with pytest.raises(DataError, match="is not empty and is not an experiment folder"):

@@ -62,6 +62,10 @@ class ExperimentSettings:
         for name, (lo, hi) in (("speed", self.speed), ("clearance", self.clearance)):
             if not lo <= hi:
                 problems.append(f"--{name} must be lo:hi with lo <= hi, got {lo}:{hi}")
+        from opt2skill.envs import ABLATIONS
+
+        if self.to_ablation not in ABLATIONS:
+            problems.append(f"--to-ablation must be one of {', '.join(ABLATIONS)}, got '{self.to_ablation}'")
         if self.human is not None and not Path(self.human).is_dir():
             problems.append(f"--human {self.human} is not a folder of .npz or .bvh clips")
         if problems:
@@ -113,6 +117,9 @@ def claim_folder(out: Path, settings: ExperimentSettings) -> None:
             theirs = json.loads(path.read_text())
         except ValueError as exc:
             raise DataError(f"{path} is unreadable ({exc}); it is not an experiment folder this command made") from None
+        # A setting added after that folder was made counts as its default there.
+        defaults = {f.name: f.default for f in dataclasses.fields(ExperimentSettings) if f.default is not dataclasses.MISSING}
+        theirs = {**{k: v for k, v in defaults.items() if k in mine and k not in theirs}, **theirs}
         if theirs != mine:
             keys = sorted(k for k in set(theirs) | set(mine) if theirs.get(k) != mine.get(k))
             shown = ", ".join(f"{k}: {theirs.get(k)!r} there, {mine.get(k)!r} now" for k in keys)

@@ -46,11 +46,11 @@ def run_table3(s: ExperimentSettings, out: Path, progress: bool = True) -> dict[
     s.check()
     os.environ["OMP_NUM_THREADS"] = "1"  # before Crocoddyl loads, here and in every generation worker
     out = Path(check_output_dir(out))
-    claim_folder(out, s)
     rows = policies(s)
     steps = Steps(out, total=2 * len(SOURCES) + 2 * len(rows) + 1 + len(SOURCES) * len(TERRAINS) + 1)
     started = time.perf_counter()
     with folder_lock(out):
+        claim_folder(out, s)  # under the lock: two runs cannot both claim an empty folder
         data = {(src, split): steps.run(f"data-{src}-{split}", f"{SOURCE_LABELS[src]} references ({split})",
                                         lambda src=src, split=split: sources.build(src, split, s, out, progress))
                 for src in SOURCES for split in ("train", "test")}
