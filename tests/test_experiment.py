@@ -18,7 +18,7 @@ from opt2skill.experiment.settings import claim_folder, resolve
 from opt2skill.experiment.table import build_table, compare_reports
 
 TINY = ["--setting", "quick", "--n-train", "1", "--n-test", "1", "--duration", "5", "--train-steps", "200",
-        "--num-envs", "4", "--histories", "0,10", "--stairs", "0,0.08", "--slopes", "0,10", "--sweep-trials", "1",
+        "--num-envs", "4", "--histories", "0,10", "--stairs", "0.08", "--slopes", "10", "--sweep-trials", "1",
         "--sweep-start", "0.3", "--workers", "1", "--quiet"]
 
 
@@ -52,7 +52,7 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     for source in ("to", "ik", "human"):
         for terrain in ("stairs", "slope"):
             sweep = json.loads((out / "sweeps" / f"{source}-{terrain}" / "sweep.json").read_text())
-            assert len(sweep["success_rate"]) == 2
+            assert len(sweep["success_rate"]) == 1 and len(sweep["trials"]) == 1
     provenance = json.loads((out / "provenance.json").read_text())
     assert provenance["provenance"]["robot_hash"] and provenance["settings"]["n_train"] == 1
     assert "Table III:" in r.stdout and "fig3.png" in r.stdout

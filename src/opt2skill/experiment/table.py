@@ -119,6 +119,6 @@ def compare_reports(a: EvalReport, b: EvalReport, paired: bool) -> dict[str, Any
         by_index = {r.index: r for r in b.results}
         pairs = [(r, by_index[r.index]) for r in a.results if r.index in by_index]
         p = paired_wilcoxon([x.errors for x, _ in pairs], [y.errors for _, y in pairs])
-        return {"test": "Wilcoxon signed-rank, paired by generation index", "n": f"{len(pairs)} pairs", "p": p}
+        return {"test": "Wilcoxon signed-rank, paired by generation index", "n": f"{len(pairs)} pair{'' if len(pairs) == 1 else 's'}", "p": p}
     p = rank_sum([r.errors for r in a.results], [r.errors for r in b.results])
     return {"test": "Wilcoxon rank-sum (Mann-Whitney U), unpaired", "n": f"{len(a.results)} vs {len(b.results)}", "p": p}
