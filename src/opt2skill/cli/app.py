@@ -8,7 +8,7 @@ from pathlib import Path
 
 import typer
 
-from opt2skill.cli import data, render, retarget, robot, train
+from opt2skill.cli import data, experiment, render, retarget, robot, train
 from opt2skill.cli import eval as evaluation
 from opt2skill.cli.console import err_console
 from opt2skill.errors import DataWarning, Opt2SkillError
@@ -25,6 +25,7 @@ app.add_typer(retarget.app)  # retarget
 app.add_typer(render.app)  # render
 app.add_typer(train.app)  # train, play
 app.add_typer(evaluation.app)  # eval, compare, sweep, export, deploy-sim
+app.add_typer(experiment.app, name="experiment")  # table3
 
 
 @app.command()

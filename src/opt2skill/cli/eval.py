@@ -252,7 +252,7 @@ def sweep(
     quiet: bool = QUIET,
 ) -> None:
     """Success rate on stairs or slopes of growing difficulty (the paper's Fig. 3): table and plot."""
-    from opt2skill.eval.sweep import SweepSettings, check_reaches_terrain, choose_reference, default_values
+    from opt2skill.eval.sweep import SweepSettings, check_reaches_terrain, default_values, sweep_reference
 
     if values:
         try:
@@ -265,20 +265,13 @@ def sweep(
                              step_length=step_length, n_steps=n_steps, tolerance=tolerance, seed=seed)
     settings.check()
     from opt2skill.data.reader import Dataset
-    from opt2skill.eval.evaluate import load_run_policy, training_fingerprints
-    from opt2skill.eval.references import check_metric_fields
+    from opt2skill.eval.evaluate import load_run_policy
 
     run, elsewhere = policy_run(run, pretrained, checkpoint, dataset)
     out = check_output_dir(out or (elsewhere or Path(run)) / "eval" / f"sweep-{terrain}")
     source = load_run_policy(run, checkpoint)
     ds = Dataset.open(dataset or source.spec.dataset)
-    position, relation = choose_reference(ds, training_fingerprints(source.spec, run), index)
-    check_metric_fields(ds, source.spec.tracking.task, position, source.spec.contact_names(source.robot))
-    reference = ds[position]
-    params = ", ".join(f"{k}={v:.3g}" for k, v in reference.params.items())
-    info = {"dataset": str(Path(ds.root).resolve()), "index": int(ds.indices[position]), "params": reference.params,
-            "description": f"#{int(ds.indices[position])} of {Path(ds.root).resolve()} ({params}), "
-                           f"{reference.duration:.1f} s, {relation}"}
+    reference, info = sweep_reference(ds, source, run, index)
     check_reaches_terrain(reference, settings, info["description"])  # before the slow part
     console.print(f"reference: {info['description']}", highlight=False, soft_wrap=True)
     with folder_lock(out):
@@ -287,15 +280,11 @@ def sweep(
 
 def _run_sweep(source, reference, info, settings, out: Path, video: bool, threads, quiet: bool) -> None:
     """The sweep's trials, then its outputs in `out` (held locked)."""
-    import numpy as np
-
-    from opt2skill.data.atomic import atomic_path, write_json
-    from opt2skill.eval.plots import plot_success
-    from opt2skill.eval.sweep import run_sweep
+    from opt2skill.eval.sweep import run_sweep, write_sweep
 
     terrain, trials, yaw_range = settings.terrain, settings.trials, settings.yaw_range
     result, rollouts = run_sweep(source, reference, info, settings, threads=threads, progress=not quiet)
-    written = [out / "sweep.json", out / "sweep.md"]
+    written = []
     if video:
         from opt2skill.eval.render import render_video
 
@@ -303,17 +292,12 @@ def _run_sweep(source, reference, info, settings, out: Path, video: bool, thread
         trial = rollouts[hardest][0]
         written.append(render_video(source.robot, trial.tracked.qpos, out / "sweep.mp4", ghost_qpos=trial.reference.qpos,
                                     terrain=result.terrains[hardest]))
-    write_json(out / "sweep.json", result.to_dict())
-    with atomic_path(out / "sweep.md") as tmp:
-        tmp.write_text(result.markdown())
-    xs = np.array(settings.values) * (100 if terrain == "stairs" else 1)
-    plot = plot_success(xs, result.rates(), out / "sweep.png", "step height (cm)" if terrain == "stairs" else "slope (deg)",
-                        f"{terrain}: {trials} trials per setting", label=source.info["name"])
+    written = [*write_sweep(result, out, source.info["name"]), *written]
     table = Table(title=f"{terrain} sweep: success rate ({trials} trials, yaw in +-{yaw_range:g} deg)", title_justify="left")
     for col in ("setting", "success", "falls", "mean progress"):
         table.add_column(col, justify="right")
     for row in result.rows():
         table.add_row(*row)
     console.print(table)
-    for path in (*written, plot):
+    for path in written:
         console.print(f"wrote {path}")

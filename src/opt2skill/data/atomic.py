@@ -70,3 +70,14 @@ def remove_temporaries(directory: str | Path) -> int:
         tmp.unlink(missing_ok=True)
         removed += 1
     return removed
+
+
+def write_report_files(out_dir: str | Path, stem: str, obj: Any, markdown: str) -> tuple[Path, Path]:
+    """OUT_DIR/STEM.json (the record) and OUT_DIR/STEM.md (tables to read), each written whole."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    json_path, md_path = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
+    write_json(json_path, obj)
+    with atomic_path(md_path) as tmp:
+        tmp.write_text(markdown)
+    return json_path, md_path

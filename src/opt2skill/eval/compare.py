@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from opt2skill.data.atomic import atomic_path, write_json
+from opt2skill.data.atomic import write_report_files
 from opt2skill.data.reader import Dataset
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.folder_lock import folder_lock
@@ -57,12 +57,7 @@ class Comparison:
         return "\n".join(lines) + "\n"
 
     def write(self, out: Path) -> tuple[Path, Path]:
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        write_json(out / "compare.json", self.to_dict())
-        with atomic_path(out / "compare.md") as tmp:
-            tmp.write_text(self.markdown())
-        return out / "compare.json", out / "compare.md"
+        return write_report_files(out, "compare", self.to_dict(), self.markdown())
 
 
 def compare(runs: list[Path], dataset: Path | None = None, n: int = 20, split: str = "held-out",

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from opt2skill.data.atomic import atomic_path, write_json
+from opt2skill.data.atomic import write_report_files
 from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import DataError
 from opt2skill.eval.metrics import METRICS, TrackingErrors
@@ -160,13 +160,7 @@ class EvalReport:
 
     def write(self, out_dir: Path, stem: str = "eval") -> tuple[Path, Path]:
         """OUT_DIR/STEM.json and OUT_DIR/STEM.md, each written atomically."""
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        json_path, md_path = out_dir / f"{stem}.json", out_dir / f"{stem}.md"
-        write_json(json_path, self.to_dict())
-        with atomic_path(md_path) as tmp:
-            tmp.write_text(self.markdown())
-        return json_path, md_path
+        return write_report_files(out_dir, stem, self.to_dict(), self.markdown())
 
     # ------------------------------------------------------------ tables
 

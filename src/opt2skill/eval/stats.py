@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import wilcoxon
+from scipy.stats import mannwhitneyu, wilcoxon
 
 from opt2skill.eval.metrics import METRICS, TrackingErrors
 
@@ -51,4 +51,16 @@ def paired_wilcoxon(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[st
             p_values[name] = float("nan")
             continue
         p_values[name] = float(wilcoxon(x[keep], y[keep]).pvalue)
+    return p_values
+
+
+def rank_sum(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, float]:
+    """Two-sided Wilcoxon rank-sum (Mann-Whitney U) p-value per metric, for rollouts on different
+    references (nothing to pair them by). NaN where either side has fewer than two defined values."""
+    p_values = {}
+    for name in METRICS:
+        x = np.array([getattr(e, name) for e in a], dtype=float)
+        y = np.array([getattr(e, name) for e in b], dtype=float)
+        x, y = x[np.isfinite(x)], y[np.isfinite(y)]
+        p_values[name] = float(mannwhitneyu(x, y).pvalue) if len(x) > 1 and len(y) > 1 else float("nan")
     return p_values

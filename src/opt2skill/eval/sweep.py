@@ -283,3 +283,37 @@ def run_sweep(run_policy, reference: Trajectory, reference_info: dict[str, Any],
                                     for r, y in zip(rs, yaws)]
     result.elapsed = time.perf_counter() - start
     return result, rollouts
+
+
+def sweep_reference(dataset, run_policy, run, index: int | None = None) -> tuple[Trajectory, dict[str, Any]]:
+    """The sweep's reference from `dataset` (`choose_reference`) for the policy of `run`, checked
+    against the policy's task and contacts, and its description for the outputs."""
+    from pathlib import Path
+
+    from opt2skill.eval.evaluate import training_fingerprints
+    from opt2skill.eval.references import check_metric_fields
+
+    position, relation = choose_reference(dataset, training_fingerprints(run_policy.spec, run), index)
+    check_metric_fields(dataset, run_policy.spec.tracking.task, position, run_policy.spec.contact_names(run_policy.robot))
+    reference = dataset[position]
+    params = ", ".join(f"{k}={v:.3g}" for k, v in reference.params.items() if isinstance(v, (int, float)))
+    root = Path(dataset.root).resolve()
+    index = int(dataset.indices[position])
+    info = {"dataset": str(root), "index": index, "params": reference.params,
+            "description": f"#{index} of {root} ({params}), {reference.duration:.1f} s, {relation}"}
+    return reference, info
+
+
+def write_sweep(result: SweepResult, out, label: str) -> list:
+    """OUT/sweep.json, sweep.md and sweep.png (success against the setting), each written whole."""
+    from pathlib import Path
+
+    from opt2skill.data.atomic import write_report_files
+    from opt2skill.eval.plots import plot_success
+
+    s = result.settings
+    json_path, md_path = write_report_files(out, "sweep", result.to_dict(), result.markdown())
+    xs = np.array(s.values) * (100 if s.terrain == "stairs" else 1)
+    plot = plot_success(xs, result.rates(), Path(out) / "sweep.png", "step height (cm)" if s.terrain == "stairs" else "slope (deg)",
+                        f"{s.terrain}: {s.trials} trials per setting", label=label)
+    return [json_path, md_path, plot]

@@ -94,9 +94,15 @@ def _robot_geometry(robot: Robot) -> dict[str, np.ndarray]:
     return out
 
 
+def robot_leg_length(robot: Robot, g: dict[str, np.ndarray] | None = None) -> float:
+    """m from the soles to the hip pitch joints in the stand pose: the leg the human's is scaled to."""
+    g = g or _robot_geometry(robot)
+    return float(0.5 * (g["left_hip"][2] + g["right_hip"][2]) - 0.5 * (g["left_foot"][2] + g["right_foot"][2]))
+
+
 def calibrate(robot: Robot, kp: dict[str, np.ndarray]) -> Calibration:
     g = _robot_geometry(robot)
-    robot_leg = 0.5 * (g["left_hip"][2] + g["right_hip"][2]) - 0.5 * (g["left_foot"][2] + g["right_foot"][2])
+    robot_leg = robot_leg_length(robot, g)
     hips = 0.5 * (kp["left_hip"][:, 2] + kp["right_hip"][:, 2])
     human_leg = float(np.percentile(hips, 90))
     if not human_leg > 0.2:

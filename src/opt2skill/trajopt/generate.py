@@ -42,6 +42,7 @@ class GenerateRequest:
     keep_gains: bool = False
     retry_failed: bool = False
     timeout: float | None = None  # s per trajectory; None: no limit
+    task_config: dict[str, Any] = field(default_factory=dict)  # task config overrides (e.g. duration); in the identity
     ray: bool = False
     ray_address: str | None = None
     command: str = ""
@@ -72,7 +73,8 @@ def _overrides(request: GenerateRequest) -> dict[str, Any]:
     from opt2skill.tasks import task_info
 
     task = task_info(request.task).task
-    return {"solver.keep_gains": True} if task is None or task.has_dynamics else {}
+    gains = {"solver.keep_gains": True} if task is None or task.has_dynamics else {}
+    return {**request.task_config, **gains}
 
 
 def generate(request: GenerateRequest, progress: bool = True) -> dict[str, Any]:
@@ -93,6 +95,8 @@ def generate(request: GenerateRequest, progress: bool = True) -> dict[str, Any]:
         "validation": config.as_dict(),
         "keep_gains": request.keep_gains,
     }
+    if request.task_config:  # only when set: datasets made before this field keep their identity
+        identity["task_config"] = dict(sorted(request.task_config.items()))
     workers = request.workers or (os.cpu_count() or 1)
     run = {
         "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),

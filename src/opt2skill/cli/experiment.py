@@ -1,0 +1,67 @@
+"""`opt2skill experiment table3`: Table III, Fig. 3 and the history ablation as one resumable command."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from opt2skill.errors import ConfigError
+
+app = typer.Typer(help="The paper's experiments, each one resumable command (docs/experiments.md).", no_args_is_help=True)
+
+
+def _numbers(text: str | None, option: str) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        return tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise ConfigError(f"{option} expects comma-separated numbers, got '{text}'") from None
+
+
+def _range(text: str | None, option: str) -> tuple[float, float] | None:
+    values = _numbers(text.replace(":", ",") if text else None, option)
+    if values is not None and len(values) != 2:
+        raise ConfigError(f"{option} expects lo:hi, got '{text}'")
+    return values
+
+
+@app.command()
+def table3(
+    setting: str = typer.Option("quick", help="quick (minutes, a smoke run) or full (the paper's scale)."),
+    out: Path = typer.Option(Path("experiments/table3"), help="Output folder (rerun the same command to resume)."),
+    n_train: int = typer.Option(None, "--n-train", help="Training references per source."),
+    n_test: int = typer.Option(None, "--n-test", help="Held-out references per source (another seed)."),
+    duration: float = typer.Option(None, help="Seconds of each TO and IK walk (full: 14, as the paper)."),
+    human_duration: float = typer.Option(None, "--human-duration", help="Seconds of each constructed human clip."),
+    speed: str = typer.Option(None, help="Matched speed range lo:hi, m/s."),
+    clearance: str = typer.Option(None, help="Matched clearance range lo:hi, m."),
+    train_steps: int = typer.Option(None, "--train-steps", help="Environment steps per policy (the same for all)."),
+    num_envs: int = typer.Option(None, "--num-envs", help="Simulated worlds while training."),
+    histories: str = typer.Option(None, help="History lengths of the ablation rows, e.g. 0,5,10,15."),
+    stairs: str = typer.Option(None, help="Stair heights of the sweep, m, e.g. 0,0.04,0.08."),
+    slopes: str = typer.Option(None, help="Slope angles of the sweep, degrees, e.g. 0,10,20."),
+    sweep_trials: int = typer.Option(None, "--sweep-trials", help="Trials per terrain setting (yaw in +-25 deg)."),
+    sweep_start: float = typer.Option(None, "--sweep-start", help="Distance to the terrain, m."),
+    human: Path = typer.Option(None, "--human", help="Folder of AMASS .npz / BVH walking clips (default: constructed "
+                               "clips); the last --n-test files are held out."),
+    to_ablation: str = typer.Option(None, "--to-ablation", help="The TO policies' inputs (pos, pos_f, pos_t, pos_f_t)."),
+    seed: int = typer.Option(None, help="Seed of the training references and training; held-out references use seed + 1."),
+    device: str = typer.Option(None, help="Training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp on a GPU)."),
+    workers: int = typer.Option(None, min=0, help="Generation processes (0: every core)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Table III (TO, IK, human; history 0/5/10/15) and Fig. 3 (stairs, slopes), resumable."""
+    from opt2skill.experiment.settings import resolve
+    from opt2skill.experiment.table3 import run_table3
+
+    hist = _numbers(histories, "--histories")
+    settings = resolve(setting, dict(
+        n_train=n_train, n_test=n_test, duration=duration, human_duration=human_duration,
+        speed=_range(speed, "--speed"), clearance=_range(clearance, "--clearance"), train_steps=train_steps,
+        num_envs=num_envs, histories=tuple(int(h) for h in hist) if hist is not None else None,
+        stairs=_numbers(stairs, "--stairs"), slopes=_numbers(slopes, "--slopes"), sweep_trials=sweep_trials,
+        sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
+        workers=workers, device=device))
+    run_table3(settings, out, progress=not quiet)

@@ -1,0 +1,1 @@
+"""Experiments of the paper as resumable commands (`opt2skill experiment ...`, docs/experiments.md)."""

@@ -1,0 +1,124 @@
+"""Table III of the experiment: each policy's mean ± SE of the eight metrics on its held-out
+references, the paper's row beside it, and p-values of TO against each baseline.
+
+Tests: TO and IK references of the same seed and index share their parameters (speed, clearance,
+step timing), so their rollouts are paired by generation index and compared with the two-sided
+Wilcoxon signed-rank test, as the paper does. Human references are other motions, with nothing to
+pair them by: TO against human uses the two-sided Wilcoxon rank-sum (Mann-Whitney U) test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from opt2skill.data.atomic import write_report_files
+from opt2skill.eval.report import TABLE_III, EvalReport, header, label, mean_se
+from opt2skill.eval.stats import paired_wilcoxon, rank_sum
+from opt2skill.experiment import paper
+from opt2skill.experiment.settings import SOURCE_LABELS
+
+
+@dataclass
+class Row:
+    key: str  # "to", "ik", "human" or "hist<N>"
+    name: str
+    report: EvalReport | None  # None: not available
+    paper: dict[str, tuple[float, float]] | None
+    missing: str = ""  # why there is no report
+
+
+@dataclass
+class Table3:
+    setting: str
+    data_rows: list[Row]
+    history_rows: list[Row]
+    p_values: dict[str, dict[str, Any]] = field(default_factory=dict)  # "TO vs IK" -> {test, n, p: {metric: p}}
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        def row(r: Row) -> dict[str, Any]:
+            out: dict[str, Any] = {"key": r.key, "name": r.name, "missing": r.missing or None,
+                                   "paper": {m: {"mean": v[0], "se": v[1]} for m, v in (r.paper or {}).items()}}
+            if r.report is not None:
+                s = r.report.summary()
+                out.update(summary={m: {"mean": s[m].mean, "se": s[m].se, "n": s[m].n} for m in TABLE_III},
+                           success_rate=r.report.success_rate, references=r.report.references.get("note"),
+                           policy=r.report.policy.get("description"))
+            return out
+
+        return {"format": "opt2skill-table3", "format_version": 1, "setting": self.setting,
+                "data": [row(r) for r in self.data_rows], "history": [row(r) for r in self.history_rows],
+                "tests": self.p_values, "paper_source": paper.SOURCE, "paper_tests": paper.PAPER_WILCOXON,
+                "notes": self.notes}
+
+    def markdown(self) -> str:
+        head = ["category", "method", *(header(m) for m in TABLE_III), "success"]
+        lines = [f"# Table III ({self.setting} setting): tracking on held-out references (mean ± SE; lower is better)", ""]
+        if self.setting != "full":
+            lines += [f"**A {self.setting}-setting smoke result: a few references and minutes of training. It shows "
+                      "that every step runs; it is not the paper's comparison.**", ""]
+        lines += ["| " + " | ".join(head) + " |", "|" + "|".join(" --- " for _ in head) + "|"]
+        for category, rows in (("Data", self.data_rows), ("Ablation", self.history_rows)):
+            for r in rows:
+                lines.append("| " + " | ".join([category, r.name, *_cells(r)]) + " |")
+                if r.paper is not None:
+                    lines.append("| " + " | ".join(["", f"*paper: {r.name}*", *(f"*{mean_se(r.paper[m])}*" for m in TABLE_III),
+                                                    ""]) + " |")
+        lines += ["", f"Paper rows (italics): {paper.SOURCE}; Agility's simulator, not this code's results.", ""]
+        if self.p_values:
+            p_head = ["comparison", "test", "pairs / sizes", *(label(m) for m in TABLE_III)]
+            lines += ["p-values of TO against each baseline ('-' where undefined):", "",
+                      "| " + " | ".join(p_head) + " |", "|" + "|".join(" --- " for _ in p_head) + "|"]
+            for pair, t in self.p_values.items():
+                lines.append("| " + " | ".join([pair, t["test"], t["n"], *(_p(t["p"][m]) for m in TABLE_III)]) + " |")
+            lines += ["", f"The paper: {paper.PAPER_WILCOXON}.", ""]
+        lines += [f"- {note}" for note in self.notes]
+        return "\n".join(lines) + "\n"
+
+    def write(self, out: Path) -> tuple[Path, Path]:
+        return write_report_files(out, "table3", self.to_dict(), self.markdown())
+
+
+def _cells(r: Row) -> list[str]:
+    if r.report is None:
+        return ["-"] * len(TABLE_III) + [f"not available: {r.missing}"]
+    s = r.report.summary()
+    n = len(r.report.results)
+    return [*(mean_se(s[m]) for m in TABLE_III), f"{r.report.success_rate:.0%} of {n}"]
+
+
+def _p(p: float) -> str:
+    return "-" if p != p else (f"{p:.2g}" if p >= 1e-3 else "<0.001")
+
+
+def build_table(setting: str, reports: dict[str, EvalReport | None], missing: dict[str, str],
+                histories: tuple[int, ...], history: int) -> Table3:
+    """`reports`: "to", "ik", "human" and "hist<N>" -> the policy's report (None when unavailable)."""
+    data = [Row(s, SOURCE_LABELS[s], reports.get(s), paper.DATA_ROWS.get(s), missing.get(s, "")) for s in ("to", "human", "ik")]
+    hist = []
+    for h in sorted(histories, reverse=True):
+        key = "to" if h == history else f"hist{h}"  # the data row's policy is the ablation's row at its history
+        hist.append(Row(key, f"Opt2Skill-hist{h}", reports.get(key), paper.HISTORY_ROWS.get(h), missing.get(key, "")))
+    table = Table3(setting, data, hist)
+    to = reports.get("to")
+    for other in ("ik", "human"):
+        rep = reports.get(other)
+        if to is None or rep is None:
+            table.notes.append(f"TO vs {SOURCE_LABELS[other]}: no test, a policy is missing")
+            continue
+        table.p_values[f"TO vs {SOURCE_LABELS[other]}"] = compare_reports(to, rep, paired=other == "ik")
+    return table
+
+
+def compare_reports(a: EvalReport, b: EvalReport, paired: bool) -> dict[str, Any]:
+    """p-values of a against b: paired by generation index (the references share their parameters),
+    else unpaired."""
+    if paired:
+        by_index = {r.index: r for r in b.results}
+        pairs = [(r, by_index[r.index]) for r in a.results if r.index in by_index]
+        p = paired_wilcoxon([x.errors for x, _ in pairs], [y.errors for _, y in pairs])
+        return {"test": "Wilcoxon signed-rank, paired by generation index", "n": f"{len(pairs)} pair{'' if len(pairs) == 1 else 's'}", "p": p}
+    p = rank_sum([r.errors for r in a.results], [r.errors for r in b.results])
+    return {"test": "Wilcoxon rank-sum (Mann-Whitney U), unpaired", "n": f"{len(a.results)} vs {len(b.results)}", "p": p}

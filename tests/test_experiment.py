@@ -1,0 +1,139 @@
+"""`opt2skill experiment table3`: the quick setting end to end at tiny sizes (real generation, training,
+evaluation and sweeps), its resume, Table III's tests, and bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from eval_support import CLI
+from opt2skill.errors import ConfigError, DataError
+from opt2skill.eval.metrics import TrackingErrors
+from opt2skill.eval.report import EvalReport, TrajectoryResult
+from opt2skill.experiment.settings import claim_folder, resolve
+from opt2skill.experiment.table import build_table, compare_reports
+
+TINY = ["--setting", "quick", "--n-train", "1", "--n-test", "1", "--duration", "5", "--train-steps", "200",
+        "--num-envs", "4", "--histories", "0,10", "--stairs", "0.08", "--slopes", "10", "--sweep-trials", "1",
+        "--sweep-start", "0.3", "--workers", "1", "--quiet"]
+
+
+@pytest.mark.slow
+def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
+    out = tmp_path / "t3"
+    r = subprocess.run([CLI, "experiment", "table3", "--out", str(out), *TINY], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    for path in ("table3.md", "table3.json", "fig3.png", "provenance.json", "experiment.json"):
+        assert (out / path).is_file(), path
+    steps = {p.stem: json.loads(p.read_text()) for p in (out / "steps").glob("*.json")}
+    assert len(steps) == 22 and all(s["status"] == "done" for s in steps.values()), {k: s["status"] for k, s in steps.items()}
+    table = json.loads((out / "table3.json").read_text())
+    assert [row["key"] for row in table["data"]] == ["to", "human", "ik"]
+    assert [row["name"] for row in table["history"]] == ["Opt2Skill-hist10", "Opt2Skill-hist0"]
+    for row in table["data"] + table["history"]:
+        assert set(row["summary"]) == {"E_joint", "E_vel_x", "E_vel_yaw", "E_ee_hand", "E_ee_foot", "E_pos_x", "E_pos_y",
+                                       "E_yaw"}
+        assert np.isfinite(row["summary"]["E_ee_foot"]["mean"]) and row["paper"]["E_ee_foot"]["mean"] > 0
+    assert set(table["tests"]) == {"TO vs IK-data", "TO vs human-data"}
+    assert "signed-rank" in table["tests"]["TO vs IK-data"]["test"]
+    # the same pipeline and budget for every policy; kinematic sources on the `pos` inputs
+    runs = {k[len("train-"):]: s["result"] for k, s in steps.items() if k.startswith("train-")}
+    assert len({r["env_steps"] for r in runs.values()}) == 1
+    assert runs["ik"]["ablation"] == runs["human"]["ablation"] == "pos" and runs["hist0"]["history"] == 0
+    # IK and TO held-out references of the same index share their parameters
+    to_report = json.loads((out / "eval" / "to" / "eval.json").read_text())
+    ik_report = json.loads((out / "eval" / "ik" / "eval.json").read_text())
+    assert to_report["trajectories"][0]["params"] == ik_report["trajectories"][0]["params"]
+    assert "none used in training (held out)" in to_report["references"]["note"]
+    for source in ("to", "ik", "human"):
+        for terrain in ("stairs", "slope"):
+            sweep = json.loads((out / "sweeps" / f"{source}-{terrain}" / "sweep.json").read_text())
+            assert len(sweep["success_rate"]) == 1 and len(sweep["trials"]) == 1
+    provenance = json.loads((out / "provenance.json").read_text())
+    assert provenance["provenance"]["robot_hash"] and provenance["settings"]["n_train"] == 1
+    assert "Table III:" in r.stdout and "fig3.png" in r.stdout
+    # A rerun skips every finished step and rewrites none of them.
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "steps").glob("*.json")}
+    start = time.perf_counter()
+    again = subprocess.run([CLI, "experiment", "table3", "--out", str(out), *TINY], capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert again.stdout.count("skipped") == 22
+    assert stamps == {p.name: p.stat().st_mtime_ns for p in (out / "steps").glob("*.json")}
+    assert time.perf_counter() - start < 60
+
+
+def test_bad_setting_is_one_clear_error(tmp_path):
+    r = subprocess.run([CLI, "experiment", "table3", "--setting", "paper", "--out", str(tmp_path / "x")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.strip() == "error: unknown setting 'paper'; settings: quick, full", r.stderr
+    assert not (tmp_path / "x").exists()
+    with pytest.raises(ConfigError, match="--n-train and --n-test must be >= 1"):
+        resolve("quick", {"n_train": 0})
+    with pytest.raises(ConfigError, match="--to-ablation must be one of pos, pos_f, pos_t, pos_f_t, got 'torque'"):
+        resolve("quick", {"to_ablation": "torque"})
+    with pytest.raises(ConfigError, match="history 10 must be one of --histories"):
+        resolve("quick", {"histories": (0, 5)})
+
+
+def test_a_folder_of_another_experiment_or_other_files_is_refused(tmp_path):
+    claim_folder(tmp_path / "a", resolve("quick"))
+    claim_folder(tmp_path / "a", resolve("quick"))  # the same settings: resumes
+    with pytest.raises(ConfigError, match=r"holds another experiment \(n_train: 3 there, 5 now\)"):
+        claim_folder(tmp_path / "a", resolve("quick", {"n_train": 5}))
+    with pytest.raises(ConfigError, match="holds another experiment .*setting: 'quick' there, 'full' now"):
+        claim_folder(tmp_path / "a", resolve("full"))
+    older = json.loads((tmp_path / "a" / "experiment.json").read_text())
+    del older["device"]  # a folder made before a setting existed: that setting counts as its default
+    (tmp_path / "a" / "experiment.json").write_text(json.dumps(older))
+    claim_folder(tmp_path / "a", resolve("quick"))
+    with pytest.raises(ConfigError, match="to_ablation: 'pos_f_t' there, 'pos' now"):
+        claim_folder(tmp_path / "a", resolve("quick", {"to_ablation": "pos"}))
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "notes.txt").write_text("mine")
+    with pytest.raises(DataError, match="is not empty and is not an experiment folder"):
+        claim_folder(tmp_path / "b", resolve("quick"))
+
+
+def _report(name: str, foot_by_index: dict[int, float]) -> EvalReport:
+    results = []
+    for index, foot in foot_by_index.items():
+        e = TrackingErrors(0.03, 5.0, 0.05, 2.0, foot, 1.0, 0.05, 0.02, float("nan"), 1.0, 100, False)
+        results.append(TrajectoryResult(index, {}, False, "time_out", 100, 100, e))
+    return EvalReport("eval", {"name": name}, {"note": ""}, {}, results)
+
+
+def test_table_pairs_to_and_ik_by_index_and_tests_human_unpaired():
+    to = _report("to", {i: 5.0 + 0.1 * i for i in range(8)})
+    ik = _report("ik", {i: 6.0 + 0.1 * i + 0.01 * (i % 3) for i in range(1, 9)})  # index 8 has no TO pair
+    human = _report("human", {100 + i: 9.0 + i for i in range(5)})
+    paired = compare_reports(to, ik, paired=True)
+    assert paired["n"] == "7 pairs" and paired["p"]["E_ee_foot"] == pytest.approx(0.015625)  # 2 / 2^7: all one sign
+    assert np.isnan(paired["p"]["E_joint"])  # every difference zero
+    unpaired = compare_reports(to, human, paired=False)
+    assert unpaired["n"] == "8 vs 5" and unpaired["p"]["E_ee_foot"] < 0.01
+    table = build_table("quick", {"to": to, "ik": ik, "human": human}, {"hist0": "no training references"},
+                        (0, 10), 10)
+    md = table.markdown()
+    assert "smoke result" in md and "not available: no training references" in md and "*paper: IK-data*" in md
+    assert [r.report for r in table.history_rows] == [to, None]
+
+
+def test_a_human_folder_is_split_into_training_and_held_out_clips(tmp_path):
+    from opt2skill.experiment.sources import build, human_files
+    from opt2skill.experiment.steps import Unavailable
+    from opt2skill.retarget.synthetic import write_walking_clips
+
+    clips = write_walking_clips(tmp_path / "amass", 5, 0, (0.5, 1.0), (0.12, 0.16), 2.0, 1.0)
+    (tmp_path / "amass" / "notes.txt").write_text("not a clip")
+    s = resolve("quick", {"human": str(tmp_path / "amass"), "n_test": 2})
+    assert human_files(s, tmp_path, "train", 3, 0) == clips[:3]
+    assert human_files(s, tmp_path, "test", 2, 1) == clips[3:]
+    few = resolve("quick", {"human": str(tmp_path / "amass"), "n_test": 5})
+    with pytest.raises(Unavailable, match="human train: no clips .*has 5 files; 5 are held out"):
+        build("human", "train", few, tmp_path / "out", progress=False)
+    with pytest.raises(ConfigError, match="--human .* is not a folder"):
+        resolve("quick", {"human": str(tmp_path / "missing")})
