@@ -101,14 +101,14 @@ def task_carried(task, traj):
 
 
 @pytest.mark.slow
-def test_the_box_pickup_passes_every_physical_check_and_reports_the_experts_placement(robot, solved):
-    """The dataset's validation of the record: dynamics, contacts, limits and the open-loop MuJoCo
-    replay windows with the shelf and the free box all pass. What the feedback expert does with the
-    box in MuJoCo is measured (`placement_error`): it does not yet reach 3 cm reliably (docs/trajopt.md)."""
+def test_the_box_pickup_is_accepted_and_the_expert_places_the_box_upright_on_its_target(robot, solved):
+    """The dataset's validation of the record: dynamics, contacts, limits, the open-loop MuJoCo replay
+    windows with the shelf and the free box, and the optimizer's feedback expert, which carries the
+    box in MuJoCo by friction alone without falling and leaves it upright within 3 cm of its target
+    (6 of the default set's first 8 are accepted, docs/trajopt.md)."""
     task, traj = solved
     errors = task.task_errors(traj)
     result = validate(robot, traj, task_errors=errors)
-    expert = {"task.placement_error", "replay_feedback_fallen"}
-    assert set(result["reasons"]) <= expert, result["reasons"]
-    assert result["figures"]["replay_fallen_windows"] == 0.0
-    assert 0.0 <= errors["placement_error"]["value"] < 2.0
+    assert result["accepted"], result["reasons"]
+    assert result["figures"]["replay_fallen_windows"] == 0.0 and result["figures"]["replay_feedback_fallen"] == 0.0
+    assert errors["placement_error"]["value"] < 0.03 and errors["placement_tilt"]["value"] < 10.0
