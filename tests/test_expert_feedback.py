@@ -110,14 +110,17 @@ def test_trajectories_without_gains_get_a_clear_error(robot, walk):
         FeedbackExpert(robot, [walk, bare])
 
 
-def test_standing_segments_are_the_walks_start_and_end(walk):
-    segments = standing_segments(walk, StandingLQR().min_duration)
+def test_standing_segments_are_the_walks_start_and_end(robot, walk):
+    feet = [f.name for f in robot.config.feet]
+    segments = standing_segments(walk, StandingLQR().min_duration, feet)
     assert len(segments) == 2
     (a0, b0), (a1, b1) = segments
     assert a0 == 0 and b1 == walk.num_frames
     assert walk.contact_active[a0:b0].all() and walk.contact_active[a1:b1].all()
     # Walking double supports are far shorter than a standing segment.
     assert not walk.contact_active[b0:a1].all(axis=1)[: int(0.5 / FRAME_DT)].all()
+    # A record with a contact the standing LQR does not know (a hand) keeps the solver's gains.
+    assert standing_segments(walk, StandingLQR().min_duration, feet[:1]) == []
 
 
 def hold_after_end(robot, walk, standing, push: float) -> np.ndarray:

@@ -41,6 +41,7 @@ class FeedbackExpert:
         self.frame_offset = np.zeros(len(trajectories), dtype=np.int64)
         self.num_frames = np.zeros(len(trajectories), dtype=np.int64)
         gain_offset = 0
+        feet = [foot.name for foot in robot.config.feet]
         for i, traj in enumerate(trajectories):
             if "gains" not in traj.knots:
                 raise DataError(
@@ -54,7 +55,8 @@ class FeedbackExpert:
             frame_knot = gain_offset + np.clip(covering, 0, len(knot_time) - 1)
             gains.append(np.asarray(traj.knots["gains"])[running])
             gain_offset += len(knot_time)
-            for start, stop in standing_segments(traj, standing.min_duration) if standing else ():
+            segments = standing_segments(traj, standing.min_duration, feet) if standing else ()
+            for start, stop in segments:
                 gains.append(standing_gain(robot, traj, (start + stop) // 2, standing)[None])
                 frame_knot[start:stop] = gain_offset
                 gain_offset += 1

@@ -12,6 +12,7 @@ on the same tangent-space deviation as DDP's (u = u_ref - K (x (-) x_ref)).
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import crocoddyl
@@ -38,9 +39,11 @@ class StandingLQR:
     baumgarte: tuple[float, float] = (100.0, 20.0)  # contact stabilization, as the optimizer's
 
 
-def standing_segments(traj: Trajectory, min_duration: float) -> list[tuple[int, int]]:
-    """Frame ranges [start, stop) where every contact of the record is active for >= min_duration."""
-    if traj.contact_active.shape[1] == 0:
+def standing_segments(traj: Trajectory, min_duration: float, feet: Collection[str]) -> list[tuple[int, int]]:
+    """Frame ranges [start, stop) where every contact of the record is active for >= min_duration.
+    None for a record with contacts besides `feet` (hands on a box): the standing LQR knows only
+    flat feet, so the solver's own gains cover the whole motion."""
+    if traj.contact_active.shape[1] == 0 or not set(traj.contact_names) <= set(feet):
         return []
     on = np.r_[0, traj.contact_active.all(axis=1).astype(np.int8), 0]
     edges = np.diff(on)
