@@ -33,6 +33,7 @@ from opt2skill.tasks.box_pickup import HANDS
 PARAMS = dict(low=0.8647255408500933, high=1.2213295140191314, upward=0.7287589425619064, reach=0.511836484304785,
               box_width=0.29665462464298725, box_mass=0.7386439330092451)
 AWAY = 0.1  # m the second scene's shelf and box are moved along x
+GRASP_HEIGHT = get_task("box_pickup", ROBOT).config.grasp_height
 
 pytestmark = pytest.mark.slow
 
@@ -60,6 +61,11 @@ def held_frames(traj) -> np.ndarray:
     return np.flatnonzero(traj.contact_active[:, hands].all(axis=1))
 
 
+def below(hands: np.ndarray) -> np.ndarray:
+    """Where the box's centre is held: `grasp_height` below the hands' midpoint."""
+    return hands.mean(axis=0) - [0.0, 0.0, GRASP_HEIGHT]
+
+
 def shown_boxes(model):
     """(centre, half size, quaternion) of every collidable box geom of the world body, sorted."""
     out = [np.r_[model.geom_pos[g], model.geom_size[g], model.geom_quat[g]] for g in range(model.ngeom)
@@ -74,9 +80,10 @@ def test_the_box_record_rests_then_follows_the_hands_then_sits_on_the_target(rec
     np.testing.assert_allclose(pose[: held[0] + 1, :3], np.tile(box.pos, (held[0] + 1, 1)), atol=1e-9)
     ee = list(traj.ee_names)
     hands = traj.ee_pos[held][:, [ee.index(h) for h in HANDS]].mean(axis=1)
-    # Rigid with the hands: its centre keeps its distance from their midpoint (1 cm where they grasped it).
+    # Rigid with the hands: its centre keeps its distance from their midpoint (where they grasped it,
+    # `grasp_height` above the centre, within 1 cm).
     apart = np.linalg.norm(pose[held, :3] - hands, axis=1)
-    assert np.ptp(apart) < 1e-3 and apart.max() < 0.02
+    assert np.ptp(apart) < 1e-3 and abs(apart.max() - GRASP_HEIGHT) < 0.01
     target = get_task("box_pickup", ROBOT).box_centres(PARAMS)[1]
     np.testing.assert_allclose(pose[held[-1] + 1:, :3], np.tile(target, (len(pose) - held[-1] - 1, 1)))
 
@@ -98,7 +105,7 @@ def test_a_reset_mid_carry_puts_the_box_between_the_hands_and_the_references_tor
         env.reset_worlds(np.array([0]), np.array([0]), np.array([(held[0] + held[-1]) // 2]))
         ee = list(ROBOT.config.end_effectors)
         hands = env.state.ee_pos[0, [ee.index(h) for h in HANDS]]
-        assert np.linalg.norm(env.state.prop_pose[0, 0, :3] - hands.mean(axis=0)) < 0.02
+        assert np.linalg.norm(env.state.prop_pose[0, 0, :3] - below(hands)) < 0.02
         assert env.state.prop_pose[0, 0, 2] > PARAMS["low"] + 0.2  # in the air, well above the lower board
         bank, start = env.bank, env.state.prop_pose[0, 0, :3].copy()
         for _ in range(100):  # 0.5 s of the reference's own PD targets and torques (its squeeze), open loop
@@ -107,7 +114,7 @@ def test_a_reset_mid_carry_puts_the_box_between_the_hands_and_the_references_tor
             result = env.step(env.actions_for_targets(targets))
             assert result.episodes is None  # the box never strays max_prop_error from its reference
             hands = env.state.ee_pos[0, [ee.index(h) for h in HANDS]]
-            assert np.linalg.norm(env.state.prop_pose[0, 0, :3] - hands.mean(axis=0)) < 0.02  # still in the hands
+            assert np.linalg.norm(env.state.prop_pose[0, 0, :3] - below(hands)) < 0.02  # still in the hands
         assert env.state.prop_pose[0, 0, 2] > start[2] + 0.05  # lifted with them towards the upper board
         # The critic (only) sees the box's position error to its reference.
         assert "prop_pos_error" not in env.layout.actor

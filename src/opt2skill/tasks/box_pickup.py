@@ -119,6 +119,10 @@ class BoxPickupConfig(TaskConfig):
     board_gap: float = 0.1  # m of free height above the box on the lower board, at least
     edge_clearance: float = 0.04  # m between the box and a board's front edge when it passes the board
     squeeze: float = 20.0  # N each hand presses on the box while it rests on a board
+    # m above the box's centre where the hands press. Two point contacts hold the box's position
+    # but not its turn about the line between them: pressed above its centre the box hangs below
+    # that line like a pendulum and rights itself; pressed at the centre any knock tilts it for good.
+    grasp_height: float = 0.04
     timing: Timing = field(default_factory=Timing)
     weights: BoxWeights = field(default_factory=BoxWeights)
     thresholds: BoxThresholds = field(default_factory=BoxThresholds)
@@ -133,6 +137,8 @@ class BoxPickupConfig(TaskConfig):
         require(0.1 <= self.box_depth <= 0.4 and 0.1 <= self.box_height <= 0.4, "box_depth and box_height must be in [0.1, 0.4] m")
         require(0.02 <= self.pregrasp <= 0.2, "pregrasp must be in [0.02, 0.2] m")
         require(0.0 <= self.squeeze <= 200.0, "squeeze must be in [0, 200] N")
+        require(0.0 <= self.grasp_height <= self.box_height / 2 - 0.02,
+                f"grasp_height must be in [0, {self.box_height / 2 - 0.02:g}] m (below the box's top edge)")
         require(0.0 <= self.retract <= 0.15 and 0.01 <= self.lift <= 0.1, "retract in [0, 0.15] m, lift in [0.01, 0.1] m")
         for section in (self.timing, self.weights, self.thresholds, self.receding):
             section.check()
@@ -176,9 +182,11 @@ class BoxPickupTask(PhaseTask):
         return np.array([x, 0.0, source + h]), np.array([x, 0.0, target + h])
 
     def hand_offsets(self, params: dict[str, float]) -> dict[str, np.ndarray]:
-        """From the box centre to each hand site at a grasp: half the width plus the hand's radius."""
+        """From the box centre to each hand site at a grasp: half the width plus the hand's radius
+        sideways, `grasp_height` up."""
         half = params["box_width"] / 2 + _hand_radius(self.robot)
-        return {"left_hand": np.array([0.0, half, 0.0]), "right_hand": np.array([0.0, -half, 0.0])}
+        up = self.config.grasp_height
+        return {"left_hand": np.array([0.0, half, up]), "right_hand": np.array([0.0, -half, up])}
 
     # -- the plan --------------------------------------------------------------------------------
 
@@ -190,7 +198,7 @@ class BoxPickupTask(PhaseTask):
         centre = np.mean([c.placement.translation for c in feet], axis=0)
         source, target = self.box_centres(params)
         offset = self.hand_offsets(params)
-        normals = {h: offset[h] / np.linalg.norm(offset[h]) for h in HANDS}
+        normals = {h: offset[h] * [1, 1, 0] / np.linalg.norm(offset[h][:2]) for h in HANDS}  # the faces' normals
         home = _hand_positions(self.robot, q0)
         grasp = {h: source + offset[h] for h in HANDS}
         place = {h: target + offset[h] for h in HANDS}
