@@ -49,8 +49,10 @@ def show_ground(model: mujoco.MjModel, ground: TerrainScene) -> None:
 def add_prop(spec: mujoco.MjSpec, prop: Prop) -> None:
     """A fixed prop's geoms on the world body, or a box on its own free body. MuJoCo names are
     `NAME/GEOM` (fixed) and the body `NAME` with joint `NAME/free` (free)."""
+    # priority 1: a contact with a prop has the prop's friction (MuJoCo otherwise takes the larger
+    # of the two geoms', and the robot's geoms have 1), so a whiteboard is slippery under a hand.
     look = dict(type=mujoco.mjtGeom.mjGEOM_BOX, contype=GROUND_CONTYPE, conaffinity=GROUND_CONAFFINITY,
-                friction=[prop.friction, *FLOOR_FRICTION[1:]], rgba=PROP_RGBA[prop.kind])
+                friction=[prop.friction, *FLOOR_FRICTION[1:]], rgba=PROP_RGBA[prop.kind], priority=1)
     if prop.fixed:
         for g in prop.geoms():
             spec.worldbody.add_geom(name=f"{prop.name}/{g.name}", size=g.half, pos=g.centre, quat=g.quat, **look)
