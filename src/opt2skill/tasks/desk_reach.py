@@ -57,7 +57,7 @@ class Timing:
     reach: float = 1.2  # phase 3: out ...
     hold: float = 0.3
     back: float = 1.2  # ... and back
-    release: float = 0.5  # phase 4: the elbow up
+    release: float = 0.8  # phase 4: the elbow up (the CoM back over the feet)
     home: float = 1.0  # phase 5
     rest: float = 0.4
 
@@ -68,10 +68,10 @@ class Timing:
 @dataclass(frozen=True)
 class ReachWeights:
     paths: float = 1e4  # end effectors along their paths
-    target: float = 1e5  # the hands at their targets (the phases' ends)
+    target: float = 1e6  # the hands at their targets (the phases' ends)
     touch: float = 1e6  # the elbow where it touches the desk (impulse node)
     com: float = 1e3  # CoM over the middle of the feet (standing phases)
-    com_supported: float = 1e1  # ... while the elbow carries part of the robot
+    com_supported: float = 1e2  # ... while the elbow carries part of the robot
     base_orientation: float = 1e3
     feet: float = 1e-2  # each foot's wrench towards half the weight (skills.desk.StandingCosts)
     leaning: float = 1e2  # torso orientation while the elbow is down
