@@ -7,7 +7,8 @@ The robot stands at a desk (top at `desk_height`). The paper's five phases:
    inside the arm's capsules) with a friction cone along the desk's normal and a least normal force
    (`elbow_min_force`), so it carries part of the robot;
 3. the left hand reaches its target (`target_x` ahead of the base, beyond the feet) and returns;
-4. the elbow releases (lifts off the desk);
+4. the CoM comes back over the feet while the elbow still holds, then the elbow releases (lifts off
+   the desk);
 5. the torso and hands return to the stand pose.
 
 Checks: the hands at their targets (`hand_error`, cm: the left at the reach's end, the right at the
@@ -57,7 +58,8 @@ class Timing:
     reach: float = 1.2  # phase 3: out ...
     hold: float = 0.3
     back: float = 1.2  # ... and back
-    release: float = 0.8  # phase 4: the elbow up (the CoM back over the feet)
+    settle: float = 0.6  # the CoM back over the feet, the elbow still down
+    release: float = 0.5  # phase 4: the elbow up
     home: float = 1.0  # phase 5
     rest: float = 0.4
 
@@ -75,6 +77,7 @@ class ReachWeights:
     base_orientation: float = 1e3
     feet: float = 1e-2  # each foot's wrench towards half the weight (skills.desk.StandingCosts)
     leaning: float = 1e2  # torso orientation while the elbow is down
+    clearance: float = 1e6  # the left elbow above the desk top (no collisions in the optimizer otherwise)
 
     def check(self) -> None:
         require(all(v >= 0 for v in vars(self).values()), "desk reach weights must be >= 0")
@@ -150,13 +153,15 @@ class DeskReachTask(DeskTask):
         phases: list[Phase] = []
         t = 0.0
 
-        def costs_of(path: HandPath, supported: bool, ends: dict[str, np.ndarray]):
+        def costs_of(path: HandPath, supported: bool, leaning: bool, ends: dict[str, np.ndarray]):
             def costs(knot: Knot, terms) -> list:
                 if knot.kind == "impulse":  # the elbow touches the desk at its support point
                     return [("elbow_touch", terms.translation(self.robot.config.end_effectors[ELBOW], goal[ELBOW]), w.touch)]
                 names = [n for n in MOVING if not (supported and n == ELBOW)]
                 out = standing.along(terms, knot, path, names)
-                if supported:
+                out.append(("left_elbow_above", terms.above(self.robot.config.end_effectors["left_elbow"], clearance),
+                            w.clearance))
+                if leaning:
                     out += standing.balance(terms, com=w.com_supported, upright=w.leaning)
                 else:
                     out += standing.balance(terms)
@@ -166,17 +171,20 @@ class DeskReachTask(DeskTask):
                 return out
             return costs
 
-        def move(duration: float, label: str, targets: dict[str, np.ndarray], supported: bool = False, ends=()):
+        def move(duration: float, label: str, targets: dict[str, np.ndarray], supported: bool = False,
+                 leaning: bool | None = None, ends=()):
             nonlocal t
             path = HandPath(dict(where), {**where, **targets}, t, duration)
             contacts = stand.feet + ((elbow,) if supported else ())
-            phases.append(Phase(duration, contacts, costs_of(path, supported, {n: targets[n] for n in ends}), label))
+            leaning = supported if leaning is None else leaning
+            phases.append(Phase(duration, contacts, costs_of(path, supported, leaning, {n: targets[n] for n in ends}), label))
             where.update(targets)
             t += duration
 
         # Hands cross the desk's front edge only as high as the elbow hovers over the desk: straight
         # from their home (in front of the edge, below the top) to a target they would hit the edge.
         clear = {h: np.array([*stand.home[h][:2], goal[ELBOW][2] + cfg.hover]) for h in HANDS}
+        clearance = goal[ELBOW][2] + cfg.hover / 2  # the reaching arm's elbow stays above the desk
         move(T.stand, "stand", {})
         move(T.rise, "right hand up", {"right_hand": clear["right_hand"]})
         move(T.place, "right hand to its target", {"right_hand": goal["right_hand"], ELBOW: above}, ends=("right_hand",))
@@ -188,6 +196,8 @@ class DeskReachTask(DeskTask):
         reached = t
         move(T.hold, "left hand at its target", {}, supported=True)
         move(T.back, "left hand back", {"left_hand": clear["left_hand"]}, supported=True)
+        # the CoM back over the feet while the elbow still holds: it leaves the desk unloaded
+        move(T.settle, "weight back on the feet", {}, supported=True, leaning=False)
         support = (start, t)
         move(T.release, "elbow up", {ELBOW: above, "left_hand": stand.home["left_hand"]})
         move(T.home, "right hand back", {"right_hand": clear["right_hand"], ELBOW: stand.home[ELBOW]})
