@@ -2,6 +2,8 @@
 balances; the optimizer's feedback expert presses with it in MuJoCo) and the desk reach's elbow
 support (only in its phases); bad inputs."""
 
+from dataclasses import replace
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -12,7 +14,7 @@ from opt2skill.model import load_robot
 from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
 from opt2skill.tasks import get_task
 from opt2skill.tasks.desk_reach import ELBOW
-from opt2skill.tasks.wipe import HANDS, Touch, expert_normal_forces, force_profile
+from opt2skill.tasks.wipe import HANDS, Touch, expert_normal_forces, force_profile, wipe_metrics
 
 WIPE = dict(desk_height=0.92, force=20.0, reach=0.42)
 REACH = dict(desk_height=0.95, target_x=0.65, target_y=0.15, target_z=0.08)
@@ -95,6 +97,12 @@ def test_the_wiping_reference_presses_with_the_profile_and_balances(robot, wiped
     result = validate(robot, traj, task_errors=errors)
     assert result["reasons"] == [], {k: result["figures"][k] for k in result["reasons"]}
     assert errors["hand_off_surface"]["value"] < 3.0  # mm
+    # Table IV's metrics: zero on the reference itself; hands pressing 3 N less are 3 N off
+    assert all(v == 0.0 for v, _ in wipe_metrics(traj, traj).values())
+    lighter = traj.contact_wrench.copy()
+    for c in [list(traj.contact_names).index(h) for h in HANDS]:
+        lighter[traj.contact_active[:, c], c, 2] -= 3.0
+    assert wipe_metrics(traj, replace(traj, contact_wrench=lighter))["force_error"] == (pytest.approx(3.0), "N")
 
 
 @pytest.mark.slow
