@@ -72,6 +72,7 @@ class ReachWeights:
     paths: float = 1e4  # end effectors along their paths
     target: float = 1e6  # the hands at their targets (the phases' ends)
     touch: float = 1e6  # the elbow where it touches the desk (impulse node)
+    still: float = 1e4  # ... and at rest there (a hard touchdown's impulse made the feet slip 6 to 8 mm)
     com: float = 1e3  # CoM over the middle of the feet (standing phases)
     com_supported: float = 1e2  # ... while the elbow carries part of the robot
     base_orientation: float = 1e3
@@ -165,9 +166,11 @@ class DeskReachTask(DeskTask):
                     out += standing.balance(terms, com=w.com_supported, upright=w.leaning)
                 else:
                     out += standing.balance(terms)
-                if knot.time >= path.t0 + path.duration - 0.05:  # the phase's last nodes: at the targets
-                    out += [(f"{n}_target", terms.translation(self.robot.config.end_effectors[n], p), w.target)
-                            for n, p in ends.items()]
+                if knot.time >= path.t0 + path.duration - 0.05:  # the phase's last nodes: at the targets, still
+                    sites = self.robot.config.end_effectors
+                    for n, p in ends.items():
+                        out += [(f"{n}_target", terms.translation(sites[n], p), w.target),
+                                (f"{n}_still", terms.velocity(sites[n], np.zeros(6), (1, 1, 1, 0, 0, 0)), w.still)]
                 return out
             return costs
 
@@ -189,7 +192,7 @@ class DeskReachTask(DeskTask):
         move(T.rise, "right hand up", {"right_hand": clear["right_hand"]})
         move(T.place, "right hand to its target", {"right_hand": goal["right_hand"], ELBOW: above}, ends=("right_hand",))
         placed = t
-        move(T.lean, "elbow down", {ELBOW: goal[ELBOW]})
+        move(T.lean, "elbow down", {ELBOW: goal[ELBOW]}, ends=(ELBOW,))
         start = t
         move(T.rise, "left hand up", {"left_hand": clear["left_hand"]}, supported=True)
         move(T.reach, "left hand out", {"left_hand": goal["left_hand"]}, supported=True, ends=("left_hand",))
