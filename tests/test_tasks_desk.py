@@ -27,8 +27,8 @@ def robot():
 
 @pytest.fixture(scope="module")
 def wiped(robot):
-    """One solved wipe (one drawn line, to keep it short), with the solver's gains for the expert."""
-    task = get_task("wipe", robot, {"solver.keep_gains": True, "lines_y": (-0.07,)})
+    """One solved wipe (two lines drawn, then wiped), with the solver's gains for the expert."""
+    task = get_task("wipe", robot, {"solver.keep_gains": True})
     return task, task.solve(WIPE, seed=0)
 
 

@@ -90,7 +90,7 @@ class WipeConfig(DeskConfig):
     desk_gap: float = 0.26  # m: the strokes start 8 cm or more beyond the edge
     desk_friction: float = 0.3  # a whiteboard's: the hands slide with this friction
     line_length: float = 0.12  # m, each drawn segment (along x)
-    lines_y: tuple[float, ...] = (-0.10, -0.04)  # m, the drawn segments' y (one or more)
+    lines_y: tuple[float, float] = (-0.10, -0.04)  # m, the two drawn segments' y
     wipe_y: tuple[float, float] = (0.02, -0.12)  # m, the wipe's ends (across the lines)
     wipe_spacing: float = 0.06  # m between the wipe's stroke across and its stroke back
     hover: float = 0.05  # m above the desk before touching it
@@ -104,7 +104,6 @@ class WipeConfig(DeskConfig):
     def check_own(self) -> None:
         require(self.desk_friction <= 0.5, "desk_friction must be at most 0.5 (inside the optimizer's cone)")
         require(0.02 <= self.line_length <= 0.3, "line_length must be in [0.02, 0.3] m")
-        require(len(self.lines_y) >= 1, "lines_y: at least one line")
         require(0.0 < self.force_ramp <= self.timing.stroke / 2, "force_ramp must be in (0, timing.stroke / 2] s")
         require(0.005 <= self.expert_force_window <= 0.5, "expert_force_window must be in [0.005, 0.5] s")
         require(self.slip_speed > 0 and 0.01 <= self.hover <= 0.2, "slip_speed > 0, hover in [0.01, 0.2] m")
