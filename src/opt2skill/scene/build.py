@@ -17,6 +17,7 @@ from opt2skill.scene.description import Scene
 from opt2skill.scene.ground import TerrainScene
 from opt2skill.scene.props import Prop
 
+PROP_PRIORITY = 1  # above the robot's geoms (0): contacts with a prop use the prop's own friction
 PROP_RGBA = {"box": [0.75, 0.55, 0.3, 1.0], "shelf": [0.55, 0.45, 0.35, 1.0], "desk": [0.6, 0.5, 0.4, 1.0]}
 
 
@@ -48,9 +49,11 @@ def show_ground(model: mujoco.MjModel, ground: TerrainScene) -> None:
 def add_prop(spec: mujoco.MjSpec, prop: Prop) -> None:
     """A fixed prop's geoms on the world body, or a box on its own free body. MuJoCo names are
     `NAME/GEOM` (fixed) and the body `NAME` with joint `NAME/free` (free)."""
+    # PROP_PRIORITY: a contact with a prop has the prop's friction (MuJoCo otherwise takes the larger
+    # of the two geoms', and the robot's geoms have 1), so a whiteboard is slippery under a hand.
     condim, friction = prop.contact
     look = dict(type=mujoco.mjtGeom.mjGEOM_BOX, contype=GROUND_CONTYPE, conaffinity=GROUND_CONAFFINITY,
-                condim=condim, friction=list(friction), rgba=PROP_RGBA[prop.kind])
+                condim=condim, friction=list(friction), rgba=PROP_RGBA[prop.kind], priority=PROP_PRIORITY)
     if prop.fixed:
         for g in prop.geoms():
             spec.worldbody.add_geom(name=f"{prop.name}/{g.name}", size=g.half, pos=g.centre, quat=g.quat, **look)

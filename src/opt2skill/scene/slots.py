@@ -24,7 +24,7 @@ import numpy as np
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.mujoco_model import GROUND_CONAFFINITY, GROUND_CONTYPE
-from opt2skill.scene.build import PROP_RGBA
+from opt2skill.scene.build import PROP_PRIORITY, PROP_RGBA
 from opt2skill.scene.ground import place_box, refit_tree
 from opt2skill.scene.props import Box, Desk, Prop, Shelf
 
@@ -66,7 +66,7 @@ class PropSlots:
         # Compiled able to collide (MuJoCo refuses to turn on collisions a geom was compiled without);
         # `apply` then shows or hides each slot.
         box = dict(type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.1, 0.1, 0.1], contype=GROUND_CONTYPE,
-                   conaffinity=GROUND_CONAFFINITY, rgba=[0.0, 0.0, 0.0, 0.0])
+                   conaffinity=GROUND_CONAFFINITY, rgba=[0.0, 0.0, 0.0, 0.0], priority=PROP_PRIORITY)
         for k in range(self.nfixed):
             spec.worldbody.add_geom(name=FIXED.format(k), **box)
         for k in range(self.nfree):

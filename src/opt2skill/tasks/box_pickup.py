@@ -27,7 +27,6 @@ from typing import Any
 
 import mujoco
 import numpy as np
-import pinocchio as pin
 
 from opt2skill.data.record import Trajectory
 from opt2skill.errors import ConfigError
@@ -43,7 +42,8 @@ from opt2skill.trajopt.posture import Posture
 from opt2skill.trajopt.receding import HoldGuess, solve_receding
 from opt2skill.trajopt.settings import ContactSettings, SolverSettings
 from opt2skill.trajopt.skills.locomotion import foot_contact, stand_footholds
-from opt2skill.trajopt.skills.manipulation import HandPath, grasp_contacts, held_object_forces, held_object_poses
+from opt2skill.trajopt.skills.manipulation import (HandPath, contact_radius, end_effector_positions, grasp_contacts,
+                                                   held_object_forces, held_object_poses)
 from opt2skill.trajopt.skills.stride_guess import RecedingSettings
 from opt2skill.trajopt.solver import Solution
 from opt2skill.trajopt.task_config import TaskConfig
@@ -184,7 +184,7 @@ class BoxPickupTask(PhaseTask):
     def hand_offsets(self, params: dict[str, float]) -> dict[str, np.ndarray]:
         """From the box centre to each hand site at a grasp: half the width plus the hand's radius
         sideways, `grasp_height` up."""
-        half = params["box_width"] / 2 + _hand_radius(self.robot)
+        half = params["box_width"] / 2 + contact_radius(self.robot, "left_hand")
         up = self.config.grasp_height
         return {"left_hand": np.array([0.0, half, up]), "right_hand": np.array([0.0, -half, up])}
 
@@ -199,7 +199,7 @@ class BoxPickupTask(PhaseTask):
         source, target = self.box_centres(params)
         offset = self.hand_offsets(params)
         normals = {h: offset[h] * [1, 1, 0] / np.linalg.norm(offset[h][:2]) for h in HANDS}  # the faces' normals
-        home = _hand_positions(self.robot, q0)
+        home = end_effector_positions(self.robot, q0, HANDS)
         grasp = {h: source + offset[h] for h in HANDS}
         place = {h: target + offset[h] for h in HANDS}
         wide = {h: grasp[h] + cfg.pregrasp * normals[h] for h in HANDS}
@@ -354,18 +354,6 @@ def _box_poses(robot, box: Box, target: np.ndarray, problem: Problem, frames: Fr
     (geom,) = box.geoms()
     return held_object_poses(robot, frames.q, frames.active[:, hands].all(axis=1), HANDS,
                              np.r_[geom.centre, geom.quat], put=np.r_[target, geom.quat])
-
-
-def _hand_radius(robot) -> float:
-    """Radius of the hand's collision sphere (the geom named like the hand's site), 0 without one."""
-    gid = mujoco.mj_name2id(robot.mj_model, mujoco.mjtObj.mjOBJ_GEOM, robot.config.end_effectors["left_hand"])
-    return float(robot.mj_model.geom_size[gid, 0]) if gid >= 0 else 0.0
-
-
-def _hand_positions(robot, q: np.ndarray) -> dict[str, np.ndarray]:
-    data = robot.pin_model.createData()
-    pin.framesForwardKinematics(robot.pin_model, data, q)
-    return {h: data.oMf[robot.pin_frame_id(robot.config.end_effectors[h])].translation.copy() for h in HANDS}
 
 
 INFO = TaskInfo(

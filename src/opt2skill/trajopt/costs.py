@@ -58,6 +58,13 @@ class Terms:
         residual = crocoddyl.ResidualModelFrameTranslation(self.state, self._site(site), np.asarray(target, float), self.nu)
         return self._weighted(residual, weights)
 
+    def above(self, site: str, height: float):
+        """Zero while a site is at least `height` m high; quadratic in the shortfall below it (a
+        barrier that keeps an arm off a desk top the optimizer does not otherwise see)."""
+        residual = crocoddyl.ResidualModelFrameTranslation(self.state, self._site(site), np.zeros(3), self.nu)
+        bounds = crocoddyl.ActivationBounds(np.array([-np.inf, -np.inf, height]), np.full(3, np.inf))
+        return crocoddyl.CostModelResidual(self.state, crocoddyl.ActivationModelQuadraticBarrier(bounds), residual)
+
     def rotation(self, site: str, target: np.ndarray, weights=(1, 1, 1)):
         residual = crocoddyl.ResidualModelFrameRotation(self.state, self._site(site), np.asarray(target, float), self.nu)
         return self._weighted(residual, weights)

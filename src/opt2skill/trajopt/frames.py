@@ -240,6 +240,7 @@ def _anchor_touchdowns(problem: Problem, k: int, x: np.ndarray) -> None:
     for name in problem.nodes[k].contacts:
         placement = oMf[problem.frame_ids[name]].copy()
         models = list(shooting.runningModels[k + 1 :]) + [shooting.terminalModel]
+        shift = None  # a point contact's references all move by its miss (a sliding one keeps its path)
         for node, model in zip(problem.nodes[k + 1 :], models):
             if node.kind == "impulse":  # another contact touching down: this one stays
                 continue
@@ -249,7 +250,9 @@ def _anchor_touchdowns(problem: Problem, k: int, x: np.ndarray) -> None:
             if problem.flat[name]:
                 contact.reference = placement
             else:
-                contact.reference = placement.translation
+                if shift is None:
+                    shift = placement.translation - contact.reference
+                contact.reference = contact.reference + shift
 
 
 def _interpolate_state(pm: pin.Model, xa: np.ndarray, xb: np.ndarray, s: float) -> np.ndarray:

@@ -37,11 +37,20 @@ class Contact:
 
     `flat` contacts (feet) are 6D with a wrench cone over the sole; others are 3D point contacts
     with a friction cone whose normal is the placement's z axis.
+
+    A point contact may slide along a planned `path` (a hand wiping a desk): t -> its point's
+    position, velocity and acceleration (world). Each node's Baumgarte reference is then
+    p + (Kd v + a) / Kp, so the contact's acceleration law a_c = -Kp (x - p_ref) - Kd x' becomes
+    a(t) - Kp (x - p) - Kd (x' - v): the point follows the path exactly, the surface's forces
+    (normal and friction) are the constraint's. `min_normal_force` replaces the contact settings'
+    lower bound of its cone (a light touch of 0 N, where the feet keep 10 N).
     """
 
     name: str
     placement: pin.SE3
     flat: bool = True
+    path: Callable[[float], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
+    min_normal_force: float | None = None
 
 
 @dataclass(frozen=True)
@@ -199,7 +208,7 @@ class ProblemBuilder:
         state, actuation = self._carrying(phase.payload)
         contacts = crocoddyl.ContactModelMultiple(state, self.nu)
         for c in phase.contacts:
-            contacts.addContact(c.name, self._contact_model(c, state))
+            contacts.addContact(c.name, self._contact_model(c, state, knot.time))
         costs = crocoddyl.CostModelSum(state, self.nu)
         if with_costs:
             terms = Terms(state, self.nu, self.robot)
@@ -238,12 +247,19 @@ class ProblemBuilder:
         model.r_coeff = 0.0  # fully plastic touchdown: the contact point stops
         return model
 
-    def _contact_model(self, c: Contact, state):
+    def _contact_model(self, c: Contact, state, t: float):
         fid = self.frame_id(c.name)
-        gains = np.array([self.contact.baumgarte_kp, self.contact.baumgarte_kd])
+        kp, kd = self.contact.baumgarte_kp, self.contact.baumgarte_kd
+        gains = np.array([kp, kd])
         if c.flat:
             return crocoddyl.ContactModel6D(state, fid, c.placement, pin.LOCAL, self.nu, gains)
-        return crocoddyl.ContactModel3D(state, fid, c.placement.translation, pin.LOCAL_WORLD_ALIGNED, self.nu, gains)
+        point = c.placement.translation
+        if c.path is not None:
+            if kp <= 0:
+                raise ConfigError(f"contact '{c.name}' slides along a path: it needs contact.baumgarte_kp > 0")
+            p, v, a = c.path(t)
+            point = np.asarray(p, float) + (kd * np.asarray(v, float) + np.asarray(a, float)) / kp
+        return crocoddyl.ContactModel3D(state, fid, point, pin.LOCAL_WORLD_ALIGNED, self.nu, gains)
 
     def _carrying(self, payload: tuple[tuple[str, float], ...]):
         """State and actuation of the robot carrying point masses at end effectors (cached).
@@ -283,7 +299,8 @@ class ProblemBuilder:
                 box = np.array([2 * foot.half_length, 2 * foot.half_width]) * self.contact.cop_scale
                 cost = terms.wrench_cone(fid, mu, box, self.contact.min_normal_force)
             else:
-                cost = terms.friction_cone(fid, c.placement.rotation, mu, self.contact.min_normal_force)
+                least = self.contact.min_normal_force if c.min_normal_force is None else c.min_normal_force
+                cost = terms.friction_cone(fid, c.placement.rotation, mu, least)
             costs.addCost(f"{c.name}_cone", cost, weights.wrench_cone)
 
     def _foot(self, contact_name: str):

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 import pinocchio as pin
 
@@ -42,6 +43,14 @@ class HandPath:
         s = smoothstep((t - self.t0) / self.duration)
         return {h: self.start[h] + (self.end[h] - self.start[h]) * s for h in self.start}
 
+    def motion(self, hand: str, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity and acceleration of `hand`'s target at t (zero speed at both ends)."""
+        u = float(np.clip((t - self.t0) / self.duration, 0.0, 1.0))
+        d = self.end[hand] - self.start[hand]
+        rate = 1.0 / self.duration
+        return (self.start[hand] + d * smoothstep(u), d * (6 * u - 6 * u * u) * rate,
+                d * (6 - 12 * u) * rate**2 if 0.0 < u < 1.0 else 0.0 * d)
+
 
 def normal_frame(normal: np.ndarray) -> np.ndarray:
     """A rotation whose z axis is `normal` (the friction cone's axis)."""
@@ -55,6 +64,45 @@ def normal_frame(normal: np.ndarray) -> np.ndarray:
 def grasp_contacts(points: dict[str, np.ndarray], normals: dict[str, np.ndarray]) -> tuple[Contact, ...]:
     return tuple(Contact(h, pin.SE3(normal_frame(normals[h]), np.asarray(points[h], dtype=float)), flat=False)
                  for h in points)
+
+
+def end_effector_positions(robot: Robot, q: np.ndarray, names) -> dict[str, np.ndarray]:
+    """World positions of end effectors (robot config names) at configuration q (Pinocchio's)."""
+    data = robot.pin_model.createData()
+    pin.framesForwardKinematics(robot.pin_model, data, q)
+    return {n: data.oMf[robot.pin_frame_id(robot.config.end_effectors[n])].translation.copy() for n in names}
+
+
+def contact_radius(robot: Robot, name: str) -> float:
+    """How far end effector `name`'s site lies inside the surface it rests on: the largest radius of
+    the collision spheres and capsules around it (a hand's sphere; at an elbow, the capsules of the
+    upper arm and forearm that end there); 0 without one."""
+    model = robot.mj_model
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    point = data.site_xpos[robot.site_id(robot.config.end_effectors[name])]
+    radii = [0.0]
+    for g in range(model.ngeom):
+        kind = int(model.geom_type[g])
+        if kind == int(mujoco.mjtGeom.mjGEOM_SPHERE):
+            a = b = data.geom_xpos[g]
+        elif kind == int(mujoco.mjtGeom.mjGEOM_CAPSULE):
+            half = model.geom_size[g, 1] * data.geom_xmat[g].reshape(3, 3)[:, 2]
+            a, b = data.geom_xpos[g] - half, data.geom_xpos[g] + half
+        else:
+            continue
+        s = np.clip(np.dot(point - a, b - a) / max(float(np.dot(b - a, b - a)), 1e-12), 0.0, 1.0)
+        if np.linalg.norm(a + s * (b - a) - point) < 1e-3:
+            radii.append(float(model.geom_size[g, 0]))
+    return max(radii)
+
+
+def sliding_contact(hand: str, path: HandPath, normal: np.ndarray, min_normal_force: float | None = None) -> Contact:
+    """`hand` as a point contact sliding along `path` on a surface with outward `normal` (wiping,
+    drawing): its friction cone opens along the normal, its Baumgarte reference follows the path."""
+    start = np.asarray(path.start[hand], dtype=float)
+    return Contact(hand, pin.SE3(normal_frame(normal), start), flat=False,
+                   path=lambda t: path.motion(hand, t), min_normal_force=min_normal_force)
 
 
 def held_object_forces(robot: Robot, problem: Problem, frames: Frames, knots: dict, hands: tuple[str, str],
