@@ -63,12 +63,12 @@ class Box:
     pos: tuple[float, float, float] = (0.5, 0.0, 0.8)
     yaw: float = 0.0  # rad, about z
     friction: float = 1.0
-    # Torsional friction of the box's contacts (m, about a contact patch's radius; MuJoCo condim 4).
-    # 0 (the default) keeps point contacts: hands pressing on two opposite faces hold the box's
-    # position, not its turn about the line between them. With torsion the box turns with the
-    # palms, and the optimizer does not plan the hands' rotation: at 0.02 m the feedback expert
-    # tipped boxes over (docs/trajopt.md).
-    torsion: float = 0.0
+    # Torsional friction of the box's contacts (m, a contact patch's size; MuJoCo condim 4; 0 gives
+    # point contacts). Hands pressing on two opposite faces hold the box's position, not its turn
+    # about the line between them: without torsion a box held above its centre swings like an
+    # undamped pendulum, and with much of it the box turns with the palms, whose rotation the
+    # optimizer does not plan. 5 mm damps the swing (docs/trajopt.md has the measurements).
+    torsion: float = 0.005
     name: str = "box"
 
     def __post_init__(self) -> None:
