@@ -147,8 +147,10 @@ def claim_folder(out: Path, settings: Settings) -> None:
             raise ConfigError(f"{out} holds another experiment ({shown}); rerun with its settings to resume it, "
                               "or choose another --out")
         return
-    if Path(out).is_dir() and any(p.name != ".lock" for p in Path(out).iterdir()):
-        raise DataError(f"{out} is not empty and is not an experiment folder (no {IDENTITY_FILE}); choose another --out")
+    # A `data` folder may be there: datasets copied in to be reused (each checks its own identity).
+    if Path(out).is_dir() and any(p.name not in (".lock", "data") for p in Path(out).iterdir()):
+        raise DataError(f"{out} is not empty and is not an experiment folder (no {IDENTITY_FILE}); choose another --out "
+                        "(a new folder may hold only data/, datasets to reuse)")
     from opt2skill.data.atomic import write_json
 
     Path(out).mkdir(parents=True, exist_ok=True)

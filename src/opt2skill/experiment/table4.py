@@ -31,6 +31,9 @@ def run_table4(s: Table4Settings, out: Path, progress: bool = True) -> dict[str,
     sets = force_sets.datasets(s)
 
     def body(out: Path, steps: Steps) -> dict[str, Path]:
+        from opt2skill.experiment.table4_estimate import describe
+
+        console.print(describe(s, sum(n for _, n in sets.values())), highlight=False, soft_wrap=True)
         for name, (wipe_set, n) in sets.items():
             steps.run(f"data-{name}", f"wiping references {name} ({n})",
                       lambda wipe_set=wipe_set, n=n: force_sets.build(wipe_set, n, s, out, progress))

@@ -95,7 +95,7 @@ QUICK_TIMING = dict(stand=0.1, rise=0.3, reach=0.5, lower=0.2, stroke=0.5, lift=
 
 PRESETS: dict[str, dict[str, Any]] = {
     # Minutes on a 2-core CPU: every step's plumbing at the paper's six levels, not its comparison.
-    "quick": dict(n_train=2, n_test=1, train_steps=3072, num_envs=32, n_transfer=1, timing=QUICK_TIMING),
+    "quick": dict(n_train=2, n_test=2, train_steps=3072, num_envs=32, n_transfer=2, timing=QUICK_TIMING),
     # The paper's set-up (Sec. IV-F): 1400 training references, 10 per level and for the transfer.
     "full": dict(n_train=1400, n_test=10, train_steps=20_000_000, num_envs=128, n_transfer=10),
 }
