@@ -155,7 +155,7 @@ def test_table_iv_cells_are_mean_and_sd_per_level_and_pooled_and_tests_pair_by_l
     pos = {0.0: _report({0: (1.1, 2.0), 1: (1.3, 4.0)}, fell=1),
            10.0: _report({0: (9.0, 3.0), 1: (9.5, 3.0), 2: (8.0, 3.0), 3: (7.0, 3.0)})}  # index 3: no pair
     reports = {**{("pos_f_t", f): r for f, r in best.items()}, **{("pos", f): r for f, r in pos.items()}}
-    table = build_table("quick", forces, ("pos", "pos_f_t"), reports, {})
+    table = build_table("quick", forces, ("pos", "pos_f", "pos_f_t"), reports, {"Pos+F at 0 N": "no trained policy"})
     cell = table.cells["force_error"]["pos_f_t"]
     assert cell["0"] == {"mean": pytest.approx(0.2), "sd": pytest.approx(np.std([0.1, 0.3], ddof=1)), "n": 2}
     assert cell["avg"]["mean"] == pytest.approx(np.mean([0.1, 0.3, 1.0, 2.0, 3.0]))
@@ -164,10 +164,12 @@ def test_table_iv_cells_are_mean_and_sd_per_level_and_pooled_and_tests_pair_by_l
     test = table.tests["Pos+F+T vs Pos"]
     assert test["pairs"] == 5 and test["p"]["force_error"] == pytest.approx(2 / 2**5)  # five pairs, one sign
     assert np.isnan(test["p"]["right_hand_error"])  # every difference zero
-    assert table.falls == {"pos": "1 of 6", "pos_f_t": "0 of 5"}
+    assert table.falls == {"pos": "1 of 6", "pos_f": "0 of 0", "pos_f_t": "0 of 5"}
+    assert np.isnan(table.tests["Pos+F+T vs Pos+F"]["p"]["force_error"]) and table.tests["Pos+F+T vs Pos+F"]["pairs"] == 0
     md = table.markdown()
     assert "smoke result" in md and "| Pos+F+T | 0.20 ± 0.14 | 2.00 ± 1.00 |" in md
     assert "| *paper: Pos* | *1.2 ± 2.1* | *8.7 ± 2.2* | *11.7 ± 8.3* |" in md
+    assert "| Pos+F | - | - | - | 0 of 0 |" in md and "not available ('-' above): Pos+F at 0 N: no trained policy" in md
 
 
 def _exact_signed_rank(d: np.ndarray) -> float:

@@ -78,8 +78,8 @@ class Table4:
         if self.transfer:
             ref = self.transfer[0]
             lines += [f"## Desk-height transfer ({ABLATION_LABELS[BEST]})", "",
-                      f"References made for a {paper_float(ref['reference_desk_height'])} m desk at "
-                      f"{paper_float([r['params']['force'] for r in ref['references']])} N, tracked with the desk moved "
+                      f"References made for a {_span_text(ref['reference_desk_height'])} m desk at "
+                      f"{_span_text([r['params']['force'] for r in ref['references']])} N, tracked with the desk moved "
                       f"({len(ref['references'])} reference(s); force: the hands' mean normal force while the reference "
                       "holds its level):", "",
                       "| desk top (m) | normal force (N) | right hand error (cm) | fell | paper: force (N) | paper: hand error (cm) |",
@@ -92,6 +92,7 @@ class Table4:
                              + (f"*{p['force'][0]} ± {p['force'][1]}* | *{p['hand_error'][0]} ± {p['hand_error'][1]}* |"
                                 if p else "| |"))
             lines.append("")
+        lines += [f"- not available ('-' above): {what}: {why}" for what, why in self.missing.items()]
         lines += [f"- {note}" for note in self.notes]
         return "\n".join(lines) + "\n"
 
@@ -103,8 +104,8 @@ def _level(force: float) -> str:
     return f"{force:g}"
 
 
-def paper_float(values) -> str:
-    """One value, or the range of several (the references' desk heights or forces)."""
+def _span_text(values) -> str:
+    """One value, or the range of several (the transfer references' desk heights or forces)."""
     v = sorted(set(round(float(x), 3) for x in values))
     return f"{v[0]:g}" if len(v) == 1 else f"{v[0]:g} to {v[-1]:g}"
 

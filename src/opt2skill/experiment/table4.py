@@ -99,11 +99,11 @@ def _reports(s: Table4Settings, steps: Steps):
     reports, missing = {}, {}
     for a in s.ablations:
         for f in s.forces:
-            record = steps.record(f"eval-{a}-{level_key(f)}") or {}
             result = done(steps, f"eval-{a}-{level_key(f)}")
             if result is not None:
                 reports[a, f] = read_report(Path(result["report"]))
             else:
+                record = steps.record(f"eval-{a}-{level_key(f)}") or {}
                 missing[f"{ABLATION_LABELS[a]} at {f:g} N"] = record.get("result", {}).get("reason", "not run")
     return reports, missing
 
@@ -127,14 +127,14 @@ def _table(s: Table4Settings, out: Path, steps: Steps) -> dict:
 
 def _data_notes(s: Table4Settings, steps: Steps) -> list[str]:
     notes = []
-    for name, (_, n) in force_sets.datasets(s).items():
-        record = steps.record(f"data-{name}") or {}
-        result = record.get("result", {})
-        if record.get("status") == "done":
+    for name in force_sets.datasets(s):
+        result = done(steps, f"data-{name}")
+        if result is not None:
             why = f" (not accepted: {result['reasons']})" if result.get("reasons") else ""
             notes.append(f"references {name}: {result['counts'].get('accepted', 0)} of {result['requested']} accepted{why}")
         else:
-            notes.append(f"references {name}: unavailable: {result.get('reason', 'not run')}")
+            reason = ((steps.record(f"data-{name}") or {}).get("result") or {}).get("reason", "not run")
+            notes.append(f"references {name}: unavailable: {reason}")
     timing = f"the wipe's phases shortened to {s.timing} s" if s.timing else "the wipe task's own timing"
     notes.append(f"same pipeline for every policy: PPO from scratch on the training set, {s.train_steps:,} environment "
                  f"steps on {s.num_envs} worlds, seed {s.seed}, history {s.history}; only the reference force / torque "
