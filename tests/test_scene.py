@@ -81,6 +81,20 @@ def test_an_unknown_prop_object_is_refused():
         Scene(props=("door",))
 
 
+def test_a_prop_can_be_moved_to_test_a_motion_in_another_scene():
+    scene = Scene(props=(Desk(height=0.95), Box(name="box")))
+    moved = scene.with_prop("desk", height=0.9)
+    assert moved.prop("desk").height == 0.9 and moved.prop("desk").boards == (0.9,)
+    assert moved.prop("box") is scene.prop("box") and scene.prop("desk").height == 0.95
+    assert [s.centre[2] for s in moved.surfaces() if s.prop == "desk"] == pytest.approx([0.9])
+    with pytest.raises(ConfigError, match=r"prop 'desk' \(desk\) has no fields \['hieght'\]; fields: depth, "):
+        scene.with_prop("desk", hieght=0.9)
+    with pytest.raises(ConfigError, match="the scene has no prop 'table'"):
+        scene.with_prop("table", height=0.9)
+    with pytest.raises(ConfigError, match="height"):
+        scene.with_prop("desk", height=0.01)
+
+
 @pytest.mark.parametrize("down", [False, True])
 def test_stairs_geoms_sit_at_the_heights_the_scene_reports(robot, down):
     stairs = Stairs(0.13, step_length=0.3, start=1.0, n_steps=4, landing=1.0, down=down)

@@ -1,4 +1,5 @@
-"""`opt2skill experiment table3`: Table III, Fig. 3 and the history ablation as one resumable command."""
+"""`opt2skill experiment table3` (Table III, Fig. 3, the history ablation) and `table4` (Table IV, Fig. 4, the
+desk-height transfer), each one resumable command."""
 
 from __future__ import annotations
 
@@ -65,3 +66,60 @@ def table3(
         sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
         workers=workers, device=device))
     run_table3(settings, out, progress=not quiet)
+
+
+def _timing(text: str | None) -> dict[str, float] | None:
+    """'task' (the wipe's own phases) or 'phase=seconds,...'."""
+    if text is None:
+        return None
+    if text.strip() == "task":
+        return {}
+    timing = {}
+    for item in filter(None, (p.strip() for p in text.split(","))):
+        name, sep, value = item.partition("=")
+        try:
+            timing[name.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ConfigError(f"--timing expects 'task' or phase=seconds,... (e.g. stroke=0.5,reach=0.5), got '{text}'")
+    return timing
+
+
+@app.command()
+def table4(
+    setting: str = typer.Option("quick", help="quick (minutes, a smoke run) or full (the paper's scale)."),
+    out: Path = typer.Option(Path("experiments/table4"), help="Output folder (rerun the same command to resume)."),
+    n_train: int = typer.Option(None, "--n-train", help="Training references (force and desk height sampled)."),
+    n_test: int = typer.Option(None, "--n-test", help="Held-out references per force level (another seed)."),
+    forces: str = typer.Option(None, help="Reference force levels of the evaluation, N, e.g. 0,5,10,15,20,25."),
+    train_force: str = typer.Option(None, "--train-force", help="Training references' force range lo:hi, N."),
+    desk_height: str = typer.Option(None, "--desk-height", help="Desk top range lo:hi of every reference, m."),
+    ablations: str = typer.Option(None, help="Policies, e.g. pos,pos_f,pos_t,pos_f_t (pos_f_t required)."),
+    train_steps: int = typer.Option(None, "--train-steps", help="Environment steps per policy (the same for all)."),
+    num_envs: int = typer.Option(None, "--num-envs", help="Simulated worlds while training."),
+    history: int = typer.Option(None, help="Observation history length of every policy."),
+    transfer_force: float = typer.Option(None, "--transfer-force", help="Force of the transfer test's reference, N."),
+    transfer_height: float = typer.Option(None, "--transfer-height", help="Desk top of the transfer reference, m."),
+    transfer_desks: str = typer.Option(None, "--transfer-desks", help="Desk tops it is tracked at, m, e.g. 0.9,1.0 "
+                                       "('' for no transfer test)."),
+    n_transfer: int = typer.Option(None, "--n-transfer", help="References of the transfer test."),
+    timing: str = typer.Option(None, help="Wipe phase durations, s: 'task' (the task's own) or e.g. stroke=0.5,reach=0.5."),
+    seed: int = typer.Option(None, help="Seed of the training references and training; held-out references use seed + 1."),
+    device: str = typer.Option(None, help="Training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp on a GPU)."),
+    workers: int = typer.Option(None, min=0, help="Generation processes (0: every core)."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+) -> None:
+    """Table IV (Pos, Pos+F, Pos+T, Pos+F+T at six force levels), Fig. 4 and the desk-height transfer, resumable."""
+    from opt2skill.experiment.settings import resolve
+    from opt2skill.experiment.table4 import run_table4
+    from opt2skill.experiment.table4_settings import Table4Settings
+
+    names = tuple(a.strip() for a in ablations.split(",") if a.strip()) if ablations is not None else None
+    settings = resolve(setting, dict(
+        n_train=n_train, n_test=n_test, forces=_numbers(forces, "--forces"), train_force=_range(train_force, "--train-force"),
+        desk_height=_range(desk_height, "--desk-height"), ablations=names, train_steps=train_steps, num_envs=num_envs,
+        history=history, transfer_force=transfer_force, transfer_height=transfer_height,
+        transfer_desks=_numbers(transfer_desks, "--transfer-desks"), n_transfer=n_transfer, timing=_timing(timing),
+        seed=seed, device=device, workers=workers), kind=Table4Settings)
+    run_table4(settings, out, progress=not quiet)

@@ -30,6 +30,14 @@ def summarize(errors: list[TrackingErrors]) -> dict[str, Summary]:
     return out
 
 
+def mean_sd(values) -> tuple[float, float]:
+    """Mean and sample standard deviation of the defined values (NaN: none, or SD of fewer than two)."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    mean = float(v.mean()) if len(v) else float("nan")
+    return mean, float(v.std(ddof=1)) if len(v) > 1 else float("nan")
+
+
 def success_rate(errors: list[TrackingErrors]) -> float:
     return float(np.mean([not e.fell for e in errors])) if errors else float("nan")
 
@@ -41,17 +49,18 @@ def paired_wilcoxon(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[st
     """
     if len(a) != len(b):
         raise ValueError(f"paired comparison needs the same references: {len(a)} against {len(b)} rollouts")
-    p_values = {}
-    for name in METRICS:
-        x = np.array([getattr(e, name) for e in a], dtype=float)
-        y = np.array([getattr(e, name) for e in b], dtype=float)
-        keep = np.isfinite(x) & np.isfinite(y)
-        diff = x[keep] - y[keep]
-        if keep.sum() < 2 or np.all(diff == 0):
-            p_values[name] = float("nan")
-            continue
-        p_values[name] = float(wilcoxon(x[keep], y[keep]).pvalue)
-    return p_values
+    return {name: signed_rank([getattr(e, name) for e in a], [getattr(e, name) for e in b]) for name in METRICS}
+
+
+def signed_rank(x, y) -> float:
+    """Two-sided Wilcoxon signed-rank p-value of paired values x[i], y[i] (`scipy.stats.wilcoxon`:
+    exact for small samples without ties, else the normal approximation); pairs with an undefined
+    value skipped. NaN where fewer than two pairs are defined or where every difference is zero."""
+    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    keep = np.isfinite(x) & np.isfinite(y)
+    if keep.sum() < 2 or np.all(x[keep] == y[keep]):
+        return float("nan")
+    return float(wilcoxon(x[keep], y[keep]).pvalue)
 
 
 def rank_sum(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, float]:

@@ -1,4 +1,5 @@
-"""The paper's Table III as data: every row, mean ± SE as printed.
+"""The paper's Tables III and IV as data: every row as printed (Table III mean ± SE, Table IV mean ± SD),
+and the desk-height transfer figures of Sec. IV-F's text.
 
 Source: Liu et al., "Opt2Skill", RA-L 2025, Table III ("Tracking performance of Opt2Skill and
 baselines (Mean ± SE; lower is better)"), Sec. IV-B; 20 references per policy, evaluated in
@@ -30,3 +31,37 @@ HISTORY_ROWS = {
 }
 # The paper reports p < 0.001 for end-effector tracking, TO against IK and against human (Sec. IV-B).
 PAPER_WILCOXON = "p < 0.001 for E_ee-hand and E_ee-foot, TO against IK and against human (Sec. IV-B text)"
+
+# The paper's Table IV as data: mean ± spread per reference force level (N) and the average ("avg"), 10
+# references per level with desk heights in 0.85-0.95 m, Agility's simulator. The paper does not name the
+# spread; the average row's (Pos: 11.7 ± 8.3 N over levels whose means run from 1.2 to 23.9 N) can only be
+# a standard deviation over all references, so this experiment reports mean ± SD.
+TABLE_IV_SOURCE = ("Liu et al., Opt2Skill, RA-L 2025, Table IV (tab:contactforce, 'Tracking errors under different "
+                   "contact force references'), Sec. IV-F; the transfer test from the text of Sec. IV-F")
+_LEVELS = (0.0, 5.0, 10.0, 15.0, 20.0, 25.0, "avg")
+
+
+def _levels(*pairs: tuple[float, float]) -> dict[float | str, tuple[float, float]]:
+    return dict(zip(_LEVELS, pairs, strict=True))
+
+
+# Contact force tracking error (N), keys the ablations' names (envs.ABLATIONS).
+FORCE_ERROR = {
+    "pos": _levels((1.2, 2.1), (4.1, 1.7), (8.7, 2.2), (13.4, 2.5), (18.7, 2.4), (23.9, 2.4), (11.7, 8.3)),
+    "pos_f": _levels((0.0, 0.0), (5.0, 0.4), (3.7, 2.9), (2.3, 2.4), (3.3, 3.7), (2.8, 4.3), (2.8, 3.2)),
+    "pos_t": _levels((0.0, 0.0), (3.6, 1.7), (3.0, 2.6), (2.9, 3.1), (2.9, 3.8), (3.0, 4.5), (2.7, 3.2)),
+    "pos_f_t": _levels((0.0, 0.0), (1.1, 1.4), (1.5, 2.2), (1.2, 2.7), (1.6, 3.4), (2.0, 3.7), (1.5, 2.6)),
+}
+# Right hand position tracking error (cm).
+HAND_ERROR = {
+    "pos": _levels((2.4, 1.7), (2.4, 1.7), (2.4, 1.7), (2.4, 1.7), (2.4, 1.7), (2.5, 1.7), (2.4, 1.7)),
+    "pos_f": _levels((3.8, 2.4), (3.0, 1.5), (3.0, 1.3), (3.2, 1.4), (3.8, 1.5), (4.6, 1.7), (3.5, 1.8)),
+    "pos_t": _levels((2.9, 1.5), (2.9, 1.6), (2.8, 1.7), (2.9, 1.7), (3.0, 1.6), (3.0, 1.6), (2.9, 1.6)),
+    "pos_f_t": _levels((2.6, 0.8), (2.6, 0.9), (3.2, 1.4), (3.2, 1.5), (2.9, 1.3), (2.6, 1.4), (2.9, 1.3)),
+}
+TABLE_IV_TESTS = "p < 0.001, Wilcoxon signed-rank, Pos+F+T against each other policy, force and hand errors, all levels"
+# Desk-height transfer (Sec. IV-F text): a 0.95-m, 15-N reference tracked with the desk at another
+# height: the mean normal force (N) and the hand tracking error (cm), mean ± SD.
+TRANSFER_REFERENCE = {"desk_height": 0.95, "force": 15.0}
+TRANSFER = {0.90: {"force": (9.6, 1.5), "hand_error": (4.1, 1.6)},
+            1.00: {"force": (21.3, 2.0), "hand_error": (4.5, 2.0)}}

@@ -1,4 +1,6 @@
-"""The sizes of `opt2skill experiment table3`: named settings (quick, full) and per-option overrides.
+"""The sizes of an experiment (`opt2skill experiment table3`, `table4`): named settings (quick,
+full) and per-option overrides, one dataclass per experiment (`ExperimentSettings` is table3's,
+`experiment.table4_settings.Table4Settings` table4's), each naming its experiment and presets.
 
 The resolved settings are the experiment's identity, written to OUT/experiment.json on the first
 run; a rerun with other settings into the same folder is refused with the differing keys named,
@@ -11,7 +13,7 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar, TypeVar
 
 from opt2skill.errors import ConfigError, DataError
 
@@ -21,8 +23,29 @@ SOURCE_TASKS = {"to": "walk", "ik": "walk_ik", "human": "walk_human"}
 IDENTITY_FILE = "experiment.json"
 
 
+class Settings:
+    """What every experiment's settings share: a name, presets, a check and an identity."""
+
+    experiment: ClassVar[str]
+    presets: ClassVar[dict[str, dict[str, Any]]]
+    setting: str
+
+    def check(self) -> None:
+        raise NotImplementedError
+
+    def identity(self) -> dict[str, Any]:
+        """What the experiment's outputs depend on (not `workers`: it changes speed, not results)."""
+        d = dataclasses.asdict(self)  # type: ignore[call-overload]
+        d.pop("workers", None)
+        return json.loads(json.dumps(d))  # tuples as lists, as they read back
+
+
+S = TypeVar("S", bound=Settings)
+
+
 @dataclass(frozen=True)
-class ExperimentSettings:
+class ExperimentSettings(Settings):
+    experiment: ClassVar[str] = "table3"
     setting: str
     n_train: int  # training references per source
     n_test: int  # held-out references per source (another seed)
@@ -74,12 +97,6 @@ class ExperimentSettings:
 
         check_device(self.device)  # e.g. cuda without a GPU: said before hours of data generation
 
-    def identity(self) -> dict[str, Any]:
-        """What the experiment's outputs depend on (not `workers`: it changes speed, not results)."""
-        d = dataclasses.asdict(self)
-        d.pop("workers")
-        return json.loads(json.dumps(d))  # tuples as lists, as they read back
-
 
 SETTINGS: dict[str, dict[str, Any]] = {
     # Minutes on a 2-core CPU: the plumbing of every step, not the paper's comparison.
@@ -94,31 +111,35 @@ SETTINGS: dict[str, dict[str, Any]] = {
 }
 
 
-def resolve(setting: str, overrides: dict[str, Any] | None = None) -> ExperimentSettings:
-    """The named setting with the given options (those not None) replacing its sizes; checked."""
-    if setting not in SETTINGS:
-        raise ConfigError(f"unknown setting '{setting}'; settings: {', '.join(SETTINGS)}")
-    values = {**SETTINGS[setting], **{k: v for k, v in (overrides or {}).items() if v is not None}}
-    names = {f.name for f in dataclasses.fields(ExperimentSettings)}
+ExperimentSettings.presets = SETTINGS
+
+
+def resolve(setting: str, overrides: dict[str, Any] | None = None, kind: type[S] = ExperimentSettings) -> S:  # type: ignore[assignment]
+    """`kind`'s named setting with the given options (those not None) replacing its sizes; checked."""
+    if setting not in kind.presets:
+        raise ConfigError(f"unknown setting '{setting}'; settings: {', '.join(kind.presets)}")
+    values = {**kind.presets[setting], **{k: v for k, v in (overrides or {}).items() if v is not None}}
+    names = {f.name for f in dataclasses.fields(kind)}  # type: ignore[arg-type]
     unknown = sorted(set(values) - names)
     if unknown:
         raise ConfigError(f"unknown experiment options {unknown}; known: {sorted(names - {'setting'})}")
-    settings = ExperimentSettings(setting=setting, **values)
+    settings = kind(setting=setting, **values)
     settings.check()
     return settings
 
 
-def claim_folder(out: Path, settings: ExperimentSettings) -> None:
+def claim_folder(out: Path, settings: Settings) -> None:
     """Write OUT/experiment.json, or check that the one there is this experiment's."""
     path = Path(out) / IDENTITY_FILE
-    mine = {"experiment": "table3", **settings.identity()}
+    mine = {"experiment": settings.experiment, **settings.identity()}
     if path.is_file():
         try:
             theirs = json.loads(path.read_text())
         except ValueError as exc:
             raise DataError(f"{path} is unreadable ({exc}); it is not an experiment folder this command made") from None
         # A setting added after that folder was made counts as its default there.
-        defaults = {f.name: f.default for f in dataclasses.fields(ExperimentSettings) if f.default is not dataclasses.MISSING}
+        defaults = {f.name: f.default for f in dataclasses.fields(settings)  # type: ignore[arg-type]
+                    if f.default is not dataclasses.MISSING}
         theirs = {**{k: v for k, v in defaults.items() if k in mine and k not in theirs}, **theirs}
         if theirs != mine:
             keys = sorted(k for k in set(theirs) | set(mine) if theirs.get(k) != mine.get(k))
@@ -126,8 +147,10 @@ def claim_folder(out: Path, settings: ExperimentSettings) -> None:
             raise ConfigError(f"{out} holds another experiment ({shown}); rerun with its settings to resume it, "
                               "or choose another --out")
         return
-    if Path(out).is_dir() and any(p.name != ".lock" for p in Path(out).iterdir()):
-        raise DataError(f"{out} is not empty and is not an experiment folder (no {IDENTITY_FILE}); choose another --out")
+    # A `data` folder may be there: datasets copied in to be reused (each checks its own identity).
+    if Path(out).is_dir() and any(p.name not in (".lock", "data") for p in Path(out).iterdir()):
+        raise DataError(f"{out} is not empty and is not an experiment folder (no {IDENTITY_FILE}); choose another --out "
+                        "(a new folder may hold only data/, datasets to reuse)")
     from opt2skill.data.atomic import write_json
 
     Path(out).mkdir(parents=True, exist_ok=True)

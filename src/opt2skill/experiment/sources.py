@@ -31,11 +31,16 @@ def build(source: str, split: str, s: ExperimentSettings, out: Path, progress: b
         summary = generate(GenerateRequest(task=SOURCE_TASKS[source], n=n, seed=seed, out=folder, workers=s.workers,
                                            ranges={"speed": s.speed, "clearance": s.clearance}, task_config=config,
                                            command="opt2skill experiment table3"), progress=progress)
+    return dataset_result(summary, folder, f"{source} {split}")
+
+
+def dataset_result(summary: dict[str, Any], folder: Path, what: str) -> dict[str, Any]:
+    """A data step's result from its dataset's summary; no accepted reference is `Unavailable`."""
     counts = summary["counts"]
     result = {"dataset": str(folder), "requested": summary["requested"], "counts": counts,
               "reasons": summary.get("reasons", {}), "solve_time": summary.get("solve_time", {})}
     if not counts.get("accepted"):
-        raise Unavailable(f"{source} {split}: none of {summary['requested']} references accepted "
+        raise Unavailable(f"{what}: none of {summary['requested']} references accepted "
                           f"(reasons: {summary.get('reasons') or 'failed'}); see {folder}")
     return result
 

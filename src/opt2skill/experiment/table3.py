@@ -17,14 +17,13 @@ newest checkpoint. A source without usable references is recorded and the rest g
 from __future__ import annotations
 
 import json
-import os
-import time
 from pathlib import Path
 from typing import Any
 
 from opt2skill.cli.console import console
 from opt2skill.experiment import sources
-from opt2skill.experiment.settings import SOURCE_LABELS, SOURCES, ExperimentSettings, claim_folder
+from opt2skill.experiment.runner import add_output, need, publish_table, run_experiment, train_policy
+from opt2skill.experiment.settings import SOURCE_LABELS, SOURCES, ExperimentSettings
 from opt2skill.experiment.steps import DONE, Steps, Unavailable
 
 TERRAINS = ("stairs", "slope")
@@ -40,17 +39,9 @@ def policies(s: ExperimentSettings) -> dict[str, tuple[str, int]]:
 
 def run_table3(s: ExperimentSettings, out: Path, progress: bool = True) -> dict[str, Path]:
     """Run (or resume) the experiment into `out`; the paths of its outputs."""
-    from opt2skill.folder_lock import folder_lock
-    from opt2skill.output_paths import check_output_dir
-
-    s.check()
-    os.environ["OMP_NUM_THREADS"] = "1"  # before Crocoddyl loads, here and in every generation worker
-    out = Path(check_output_dir(out))
     rows = policies(s)
-    steps = Steps(out, total=2 * len(SOURCES) + 2 * len(rows) + 1 + len(SOURCES) * len(TERRAINS) + 1)
-    started = time.perf_counter()
-    with folder_lock(out):
-        claim_folder(out, s)  # under the lock: two runs cannot both claim an empty folder
+
+    def body(out: Path, steps: Steps) -> dict[str, Path]:
         data = {(src, split): steps.run(f"data-{src}-{split}", f"{SOURCE_LABELS[src]} references ({split})",
                                         lambda src=src, split=split: sources.build(src, split, s, out, progress))
                 for src in SOURCES for split in ("train", "test")}
@@ -66,52 +57,29 @@ def run_table3(s: ExperimentSettings, out: Path, progress: bool = True) -> dict[
                 steps.run(f"sweep-{src}-{terrain}", f"{terrain} sweep of {SOURCE_LABELS[src]}",
                           lambda src=src, terrain=terrain: _sweep(s, out, src, terrain, steps, progress))
         steps.run("fig3", "Fig. 3 (success rate on terrain)", lambda: _figure(s, out, steps))
-        outputs = _outputs(s, out, rows, steps)
-        _provenance(s, out, steps, time.perf_counter() - started)
-    console.rule("[bold]done")
-    for what, where in outputs.items():  # plain lines: a table would cut long paths
-        console.print(f"{what}: {where}", soft_wrap=True, highlight=False)
-    return outputs
+        return _outputs(s, out, rows, steps)
 
-
-def run_dir(out: Path, key: str) -> Path:
-    return Path(out) / "runs" / key
+    total = 2 * len(SOURCES) + 2 * len(rows) + 1 + len(SOURCES) * len(TERRAINS) + 1
+    return run_experiment(s, out, total, body)
 
 
 def eval_dir(out: Path, key: str) -> Path:
     return Path(out) / "eval" / key
 
 
-def _need(steps: Steps, name: str, what: str) -> dict[str, Any]:
-    record = steps.record(name)
-    if record is None or record["status"] != DONE:
-        reason = (record or {}).get("result", {}).get("reason", "not run")
-        raise Unavailable(f"no {what} ({reason})")
-    return record["result"]
-
-
 def _train(s: ExperimentSettings, out: Path, key: str, source: str, history: int, data, progress: bool) -> dict:
-    from opt2skill.rl import session
-
     record = data[(source, "train")]
     if record["status"] != DONE:
         raise Unavailable(f"no training references ({record['result']['reason']})")
     ablation = s.to_ablation if source == "to" else "pos"  # kinematic records carry no torques or forces
-    request = session.TrainRequest(dataset=Path(record["result"]["dataset"]), out=run_dir(out, key), steps=s.train_steps,
-                                   num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=COMMAND,
-                                   device=s.device)
-    start = time.perf_counter()
-    result = session.train(request, progress=progress, announce=lambda line: console.print(line, highlight=False))
-    elapsed = time.perf_counter() - start
-    return {"run": str(request.out), "ablation": ablation, "history": history, "iteration": result["iteration"],
-            "env_steps": result["env_steps"], "train_s": elapsed, "references": record["result"]["counts"]["accepted"]}
+    return train_policy(s, out, key, record["result"], ablation, history, COMMAND, progress)
 
 
 def _evaluate(s: ExperimentSettings, out: Path, key: str, source: str, steps: Steps, progress: bool) -> dict:
     from opt2skill.eval.evaluate import EvalRequest, evaluate
 
-    run = _need(steps, f"train-{key}", "trained policy")["run"]
-    test = _need(steps, f"data-{source}-test", "held-out references")["dataset"]
+    run = need(steps, f"train-{key}", "trained policy")["run"]
+    test = need(steps, f"data-{source}-test", "held-out references")["dataset"]
     report, _ = evaluate(EvalRequest(run=Path(run), dataset=Path(test), n=s.n_test), progress=progress)
     json_path, md_path = report.write(eval_dir(out, key))
     frames = sum(r.frames for r in report.results)
@@ -138,9 +106,7 @@ def _table(s: ExperimentSettings, out: Path, steps: Steps) -> dict:
     reports, missing = _reports(s, steps)
     table = build_table(s.setting, reports, missing, s.histories, s.history)
     table.notes += _data_notes(s, steps)
-    paths = table.write(out)
-    console.print(table.markdown(), highlight=False, soft_wrap=True)
-    return {"json": str(paths[0]), "table": str(paths[1])}
+    return publish_table(table, out)
 
 
 def _data_notes(s: ExperimentSettings, steps: Steps) -> list[str]:
@@ -171,8 +137,8 @@ def _sweep(s: ExperimentSettings, out: Path, source: str, terrain: str, steps: S
     from opt2skill.eval.evaluate import load_run_policy
     from opt2skill.eval.sweep import SweepSettings, check_reaches_terrain, run_sweep, sweep_reference, write_sweep
 
-    run = Path(_need(steps, f"train-{source}", "trained policy")["run"])
-    test = _need(steps, f"data-{source}-test", "held-out references")["dataset"]
+    run = Path(need(steps, f"train-{source}", "trained policy")["run"])
+    test = need(steps, f"data-{source}-test", "held-out references")["dataset"]
     values = s.stairs if terrain == "stairs" else s.slopes
     settings = SweepSettings(terrain=terrain, values=tuple(values), trials=s.sweep_trials, yaw_range=s.yaw_range,
                              start=s.sweep_start, seed=s.seed)
@@ -206,56 +172,15 @@ def _figure(s: ExperimentSettings, out: Path, steps: Steps) -> dict:
 
 def _outputs(s: ExperimentSettings, out: Path, rows, steps: Steps) -> dict[str, Path]:
     outputs: dict[str, Path] = {}
-    for name, what in (("table3", "Table III"), ("fig3", "Fig. 3")):
-        record = steps.record(name) or {}
-        if record.get("status") == DONE:
-            result = record["result"]
-            outputs[what] = Path(result.get("table") or result["figure"])
+    add_output(outputs, steps, "table3", "Table III", "table")
+    add_output(outputs, steps, "fig3", "Fig. 3", "figure")
     for src in SOURCES:
         for split in ("train", "test"):
-            record = steps.record(f"data-{src}-{split}") or {}
-            if record.get("status") == DONE:
-                outputs[f"{SOURCE_LABELS[src]} references ({split})"] = Path(record["result"]["dataset"])
+            add_output(outputs, steps, f"data-{src}-{split}", f"{SOURCE_LABELS[src]} references ({split})", "dataset")
     for key in rows:
-        for step, field, what in (("train", "run", "run"), ("eval", "table", "evaluation")):
-            record = steps.record(f"{step}-{key}") or {}
-            if record.get("status") == DONE:
-                outputs[f"{key} {what}"] = Path(record["result"][field])
+        add_output(outputs, steps, f"train-{key}", f"{key} run", "run")
+        add_output(outputs, steps, f"eval-{key}", f"{key} evaluation", "table")
     for src in SOURCES:
         for terrain in TERRAINS:
-            record = steps.record(f"sweep-{src}-{terrain}") or {}
-            if record.get("status") == DONE:
-                outputs[f"{src} {terrain} sweep"] = Path(record["result"]["table"])
-    outputs["provenance"] = Path(out) / "provenance.json"
-    outputs["steps (one file per finished step)"] = Path(out) / "steps"
+            add_output(outputs, steps, f"sweep-{src}-{terrain}", f"{src} {terrain} sweep", "table")
     return outputs
-
-
-def _provenance(s: ExperimentSettings, out: Path, steps: Steps, elapsed: float) -> None:
-    """Versions, robot hash, settings and every step's status and time, rewritten on every run."""
-    import importlib.metadata as md
-
-    from opt2skill.data.atomic import write_json
-    from opt2skill.model import load_robot
-    from opt2skill.provenance import provenance
-
-    records = {p.stem: json.loads(p.read_text()) for p in sorted(steps.folder.glob("*.json"))}
-    extra = {name: md.version(name) for name in ("scipy", "matplotlib", "mink")
-             if _installed(name)}
-    write_json(Path(out) / "provenance.json", {
-        "experiment": "table3", "settings": s.identity(), "workers": s.workers,
-        "provenance": provenance(load_robot("digit").hash, command=COMMAND, more_libraries=extra),
-        "this_invocation_s": elapsed,
-        "steps": {name: {"status": r["status"], "elapsed_s": r["elapsed_s"], "finished": r["finished"],
-                         "reason": r["result"].get("reason")} for name, r in records.items()},
-    })
-
-
-def _installed(name: str) -> bool:
-    import importlib.metadata as md
-
-    try:
-        md.version(name)
-        return True
-    except md.PackageNotFoundError:
-        return False

@@ -89,6 +89,17 @@ class Scene:
                 return prop
         raise ConfigError(f"the scene has no prop '{name}'; props: {[p.name for p in self.props]}")
 
+    def with_prop(self, name: str, **changes: Any) -> Scene:
+        """This scene with prop `name`'s fields replaced (e.g. a desk moved to another height, to
+        test a policy in a scene its reference was not made in); the prop checks its new values."""
+        prop = self.prop(name)
+        fields = {f.name for f in dataclasses.fields(prop)} - {"name"}
+        unknown = sorted(set(changes) - fields)
+        if unknown:
+            raise ConfigError(f"prop '{name}' ({_kind_of(prop)}) has no fields {unknown}; fields: {', '.join(sorted(fields))}")
+        moved = dataclasses.replace(prop, **changes)
+        return Scene(self.terrain, tuple(moved if p is prop else p for p in self.props))
+
     def surfaces(self) -> list[Surface]:
         return [s for prop in self.props for s in prop.surfaces()]
 

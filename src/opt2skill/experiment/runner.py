@@ -1,0 +1,117 @@
+"""What every experiment command does around its own steps: one writer per folder, the folder's
+identity, the step counter, training a policy, the provenance file, and the list of outputs."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from opt2skill.cli.console import console
+from opt2skill.experiment.settings import Settings, claim_folder
+from opt2skill.experiment.steps import DONE, Steps, Unavailable
+
+
+def run_experiment(s: Settings, out: Path, total: int, body: Callable[[Path, Steps], dict[str, Path]]) -> dict[str, Path]:
+    """Check `s`, lock and claim `out`, run `body(out, steps)` (the experiment's steps; it returns
+    its outputs), write the provenance and print where each output is."""
+    from opt2skill.folder_lock import folder_lock
+    from opt2skill.output_paths import check_output_dir
+
+    s.check()
+    os.environ["OMP_NUM_THREADS"] = "1"  # before Crocoddyl loads, here and in every generation worker
+    out = Path(check_output_dir(out))
+    steps = Steps(out, total=total)
+    started = time.perf_counter()
+    with folder_lock(out):
+        claim_folder(out, s)  # under the lock: two runs cannot both claim an empty folder
+        outputs = body(out, steps)
+        outputs["provenance"] = out / "provenance.json"
+        outputs["steps (one file per finished step)"] = steps.folder
+        write_provenance(s, out, steps, time.perf_counter() - started)
+    console.rule("[bold]done")
+    for what, where in outputs.items():  # plain lines: a table would cut long paths
+        console.print(f"{what}: {where}", soft_wrap=True, highlight=False)
+    return outputs
+
+
+def need(steps: Steps, name: str, what: str) -> dict[str, Any]:
+    """The result of finished step `name`; `Unavailable` (with its reason) when it is not done."""
+    record = steps.record(name)
+    if record is None or record["status"] != DONE:
+        reason = (record or {}).get("result", {}).get("reason", "not run")
+        raise Unavailable(f"no {what} ({reason})")
+    return record["result"]
+
+
+def done(steps: Steps, name: str) -> dict[str, Any] | None:
+    """The result of step `name` when it finished, else None."""
+    record = steps.record(name) or {}
+    return record["result"] if record.get("status") == DONE else None
+
+
+def run_dir(out: Path, key: str) -> Path:
+    return Path(out) / "runs" / key
+
+
+def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: str, history: int, command: str,
+                 progress: bool) -> dict[str, Any]:
+    """PPO from scratch on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed,
+    device), into OUT/runs/KEY; resumes from the run's newest checkpoint."""
+    from opt2skill.rl import session
+
+    request = session.TrainRequest(dataset=Path(data["dataset"]), out=run_dir(out, key), steps=s.train_steps,
+                                   num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=command,
+                                   device=s.device)
+    start = time.perf_counter()
+    result = session.train(request, progress=progress, announce=lambda line: console.print(line, highlight=False))
+    elapsed = time.perf_counter() - start
+    return {"run": str(request.out), "ablation": ablation, "history": history, "iteration": result["iteration"],
+            "env_steps": result["env_steps"], "train_s": elapsed, "references": data["counts"]["accepted"]}
+
+
+def write_provenance(s: Settings, out: Path, steps: Steps, elapsed: float) -> None:
+    """Versions, robot hash, settings and every step's status and time, rewritten on every run."""
+    import importlib.metadata as md
+
+    from opt2skill.data.atomic import write_json
+    from opt2skill.model import load_robot
+    from opt2skill.provenance import provenance
+
+    records = {p.stem: json.loads(p.read_text()) for p in sorted(steps.folder.glob("*.json"))}
+    extra = {name: md.version(name) for name in ("scipy", "matplotlib", "mink") if _installed(name)}
+    write_json(Path(out) / "provenance.json", {
+        "experiment": s.experiment, "settings": s.identity(), "workers": getattr(s, "workers", None),
+        "provenance": provenance(load_robot("digit").hash, command=f"opt2skill experiment {s.experiment}",
+                                 more_libraries=extra),
+        "this_invocation_s": elapsed,
+        "steps": {name: {"status": r["status"], "elapsed_s": r["elapsed_s"], "finished": r["finished"],
+                         "reason": r["result"].get("reason")} for name, r in records.items()},
+    })
+
+
+def _installed(name: str) -> bool:
+    import importlib.metadata as md
+
+    try:
+        md.version(name)
+        return True
+    except md.PackageNotFoundError:
+        return False
+
+
+def add_output(outputs: dict[str, Path], steps: Steps, step: str, label: str, field: str) -> None:
+    """outputs[label] = the path in field `field` of step `step`'s result, when that step is done."""
+    result = done(steps, step)
+    if result is not None:
+        outputs[label] = Path(result[field])
+
+
+def publish_table(table: Any, out: Path) -> dict[str, str]:
+    """Write a table (its `write(out)` gives the JSON and Markdown paths) and print it."""
+    json_path, md_path = table.write(out)
+    console.print(table.markdown(), highlight=False, soft_wrap=True)
+    return {"json": str(json_path), "table": str(md_path)}

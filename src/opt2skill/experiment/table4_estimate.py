@@ -1,0 +1,50 @@
+"""What a table4 run is expected to cost on a 2-core CPU, from the per-item rates measured here
+(docs/trajopt.md, docs/experiments.md), printed before it starts: the full setting is about 38 h,
+the quick one about 18 min (measured: 37 min at load 5-7).
+Training's rate is table3's on walks (128 worlds); the wipe's was not measured at that scale."""
+
+from __future__ import annotations
+
+import os
+
+from opt2skill.experiment.table4_settings import TASK, Table4Settings
+
+SOLVE_PER_MOTION_SECOND = 8.5  # s of wipe solve per s of motion (96 s for the 11.4-s wipe, load 4-5)
+VALIDATION = 5.0  # s per reference (the expert's force replay included)
+TRAIN_STEPS_PER_S = 1300.0  # environment steps/s end to end, 128 worlds, quiet 2-core CPU (docs/experiments.md)
+TRAIN_SETUP = 20.0  # s per policy: environment, references, checkpoints (29 to 69 s for 3,072 steps at load 6-7)
+EVAL_STEP = 0.014  # s per policy step of one evaluation's batch of worlds (14-s walks, 20 worlds: 40 s quiet)
+
+
+def motion_seconds(s: Table4Settings) -> float:
+    """Seconds of one wipe with the experiment's timing (its phase plan)."""
+    from opt2skill.model import load_robot
+    from opt2skill.tasks import get_task
+
+    task = get_task(TASK, load_robot("digit"), s.task_config())
+    return sum(phase.duration for phase in task.plan(task.param_space().sample(s.seed, 0)).phases)
+
+
+def estimate(s: Table4Settings, references: int) -> dict[str, float]:
+    """Hours of each stage for `references` references to generate (every set, not those on disk)."""
+    workers = s.workers or os.cpu_count() or 1
+    seconds = motion_seconds(s)
+    frames = seconds * 200
+    generate = references * (SOLVE_PER_MOTION_SECOND * seconds + VALIDATION) / min(workers, max(references, 1))
+    train = len(s.ablations) * (TRAIN_SETUP + s.train_steps / TRAIN_STEPS_PER_S)
+    evaluate = (len(s.ablations) * len(s.forces) + len(s.transfer_desks)) * frames * EVAL_STEP  # one batch each
+    return {"motion_s": seconds, "datasets_h": generate / 3600, "training_h": train / 3600, "evaluation_h": evaluate / 3600}
+
+
+def describe(s: Table4Settings, references: int) -> str:
+    e = estimate(s, references)
+    total = e["datasets_h"] + e["training_h"] + e["evaluation_h"]
+    return (f"expected on a 2-core CPU (rates measured on this project's; a machine loaded to 6-7 took twice as "
+            f"long): {references} wipes of {e['motion_s']:.1f} s, {_time(e['datasets_h'])}; "
+            f"{len(s.ablations)} policies x {s.train_steps:,} environment steps, {_time(e['training_h'])}; "
+            f"evaluation {_time(e['evaluation_h'])}; "
+            f"in all {_time(total)} (rerun the same command to resume)")
+
+
+def _time(hours: float) -> str:
+    return f"about {hours:.1f} h" if hours >= 1 else f"about {max(1, round(60 * hours))} min"
