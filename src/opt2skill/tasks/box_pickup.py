@@ -94,6 +94,9 @@ class BoxWeights:
     squeeze: float = 1e3  # hand forces towards a pure squeeze while the box rests on a board
     com: float = 1e3  # CoM over the middle of the feet
     base_orientation: float = 3e3  # upright: a leaning torso meets the box or the board above
+    # On the generalized accelerations while the box is carried: the plan chattered between knots
+    # there (hands at up to 47 m/s^2 in single frames), which the box's forces on the hands follow.
+    acceleration: float = 0.1
 
     def check(self) -> None:
         require(all(v >= 0 for v in vars(self).values()), "box weights must be >= 0")
@@ -118,6 +121,10 @@ class BoxPickupConfig(TaskConfig):
     pregrasp: float = 0.08  # m beside a face before closing on it
     retract: float = 0.05  # m the box is pulled back (towards the robot) when lifted
     lift: float = 0.04  # m the box is lifted off a board
+    # m above the target board the box is carried in over it. In MuJoCo a held box creeps down
+    # between the hands (soft friction: about 1 cm/s under its weight, whatever the squeeze), so
+    # by then it hangs 3 to 4 cm lower than planned and scraped the board's edge at `lift`.
+    carry_clearance: float = 0.08
     board_gap: float = 0.1  # m of free height above the box on the lower board, at least
     edge_clearance: float = 0.04  # m between the box and a board's front edge when it passes the board
     squeeze: float = 20.0  # N each hand presses on the box at least (on a board and while carrying it)
@@ -125,7 +132,7 @@ class BoxPickupConfig(TaskConfig):
     # half the box with `hold_margin` while the box accelerates by `hold_acceleration` (m/s^2); the
     # arms' torques hold that squeeze inside the solve (`skills.manipulation.hold_squeeze`).
     hold_margin: float = 1.5
-    hold_acceleration: float = 3.0
+    hold_acceleration: float = 6.0
     # m above the box's centre where the hands press. Two point contacts hold the box's position
     # but not its turn about the line between them: pressed above its centre the box hangs below
     # that line like a pendulum and rights itself; pressed at the centre any knock tilts it for good.
@@ -148,7 +155,8 @@ class BoxPickupConfig(TaskConfig):
                 "hold_margin must be in [1, 5], hold_acceleration in [0, 20] m/s^2")
         require(0.0 <= self.grasp_height <= self.box_height / 2 - 0.02,
                 f"grasp_height must be in [0, {self.box_height / 2 - 0.02:g}] m (below the box's top edge)")
-        require(0.0 <= self.retract <= 0.15 and 0.01 <= self.lift <= 0.1, "retract in [0, 0.15] m, lift in [0.01, 0.1] m")
+        require(0.0 <= self.retract <= 0.15 and 0.01 <= self.lift <= 0.1 and 0.01 <= self.carry_clearance <= 0.1,
+                "retract in [0, 0.15] m, lift and carry_clearance in [0.01, 0.1] m")
         for section in (self.timing, self.weights, self.thresholds, self.receding):
             section.check()
 
@@ -218,20 +226,23 @@ class BoxPickupTask(PhaseTask):
         # Around the boards: out past the shelf's front edge, to the other board's height, in above it.
         clear = self.front_edge(params) - cfg.box_depth / 2 - cfg.edge_clearance - source[0]
         out_here = {h: grasp[h] + np.array([clear, 0.0, cfg.lift]) for h in HANDS}
-        out_there = {h: place[h] + np.array([clear, 0.0, cfg.lift]) for h in HANDS}
-        above = {h: place[h] + np.array([0.0, 0.0, cfg.lift]) for h in HANDS}
+        out_there = {h: place[h] + np.array([clear, 0.0, cfg.carry_clearance]) for h in HANDS}
+        above = {h: place[h] + np.array([0.0, 0.0, cfg.carry_clearance]) for h in HANDS}
         clear_of_board = {h: wide_at_target[h] + np.array([clear, 0.0, 0.0]) for h in HANDS}
         approach = {h: wide[h] + np.array([clear, 0.0, 0.0]) for h in HANDS}  # in front of the board edge
         held = tuple((h, params["box_mass"] / 2) for h in HANDS) if params["box_mass"] > 0 else ()
         squeeze = self.squeeze_force(params["box_mass"])
 
-        def balance(knot: Knot, terms) -> list:
-            return [("com", terms.com([centre[0], centre[1], 0.0], (1, 1, 0)), w.com),
-                    ("base_orientation", terms.rotation(self.robot.config.imu_site, np.eye(3)), w.base_orientation)]
+        def balance(knot: Knot, terms, carrying: bool = False) -> list:
+            out = [("com", terms.com([centre[0], centre[1], 0.0], (1, 1, 0)), w.com),
+                   ("base_orientation", terms.rotation(self.robot.config.imu_site, np.eye(3)), w.base_orientation)]
+            if carrying and knot.kind == "running" and w.acceleration > 0:
+                out.append(("acceleration", terms.acceleration(1.0), w.acceleration))
+            return out
 
-        def hands_along(path: HandPath, weight: float):
+        def hands_along(path: HandPath, weight: float, carrying: bool):
             def costs(knot: Knot, terms) -> list:
-                out = balance(knot, terms)
+                out = balance(knot, terms, carrying)
                 if knot.kind == "impulse":
                     return []
                 for h, p in path.at(knot.time).items():
@@ -272,7 +283,7 @@ class BoxPickupTask(PhaseTask):
             nonlocal t
             contacts = feet + (grasp_contacts(grasping, normals) if grasping else ())
             path = HandPath(start, end, t, duration)
-            costs = touching(grasping) if grasping else hands_along(path, weight)
+            costs = touching(grasping) if grasping else hands_along(path, weight, holding)
             phases.append(Phase(duration, contacts, costs, label, payload=held if holding else (),
                                 squeeze=squeeze if holding and held else 0.0))
             t += duration
