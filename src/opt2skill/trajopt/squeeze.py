@@ -52,7 +52,7 @@ class SqueezeActuation(crocoddyl.ActuationModelAbstract):
         pin.updateFramePlacements(m, d)
         jac = [pin.getFrameJacobian(m, d, fid, pin.LOCAL_WORLD_ALIGNED)[:, self.columns] for fid in self.frames]
         gap = d.oMf[self.frames[0]].translation - d.oMf[self.frames[1]].translation
-        distance = float(np.linalg.norm(gap))
+        distance = float(np.sqrt(gap @ gap))
         return jac, gap / distance, distance
 
     def _gradient(self, q: np.ndarray) -> np.ndarray:
@@ -67,14 +67,13 @@ class SqueezeActuation(crocoddyl.ActuationModelAbstract):
     def calcDiff(self, data, x, u) -> None:
         (j1, j2), axis, distance = self._kinematics(x[: self.nq])
         jd = j1[:3] - j2[:3]
-        hessian = jd.T @ (np.eye(3) - np.outer(axis, axis)) @ jd / distance
-        for jac, sign in ((j1, 1.0), (j2, -1.0)):
-            # a . d2p/dq_i dq_j = a . (w_i x v_j) for i before j on the chain (and i == j)
-            second = np.einsum("k,kij->ij", axis, np.cross(jac[3:].T[:, None, :], jac[:3].T[None, :, :]).transpose(2, 0, 1))
-            second = np.where(self.before, second, second.T)
-            hessian += sign * second
+        hessian = jd.T @ (jd - np.outer(axis, axis @ jd)) / distance
+        # a . d2p/dq_i dq_j = a . (w_i x v_j) = (a x w_i) . v_j for i before j on the chain (and i == j)
+        ax, ay, az = axis
+        skew = np.array([[0.0, -az, ay], [az, 0.0, -ax], [-ay, ax, 0.0]])  # skew @ w = a x w
+        second = (skew @ j1[3:]).T @ j1[:3] - (skew @ j2[3:]).T @ j2[:3]
+        hessian += np.where(self.before, second, second.T)
         data.dtau_dx[np.ix_(self.columns, self.columns)] = self.squeeze * hessian
-        data.dtau_du[6:, :] = np.eye(self.nu)
 
     def commands(self, data, x, tau) -> None:
         data.u[:] = tau[6:] - self.generalized_force(x[: self.nq])[6:]
