@@ -94,8 +94,9 @@ class BoxWeights:
     squeeze: float = 1e3  # hand forces towards a pure squeeze while the box rests on a board
     com: float = 1e3  # CoM over the middle of the feet
     base_orientation: float = 3e3  # upright: a leaning torso meets the box or the board above
-    # On the generalized accelerations while the box is carried: the plan chattered between knots
-    # there (hands at up to 47 m/s^2 in single frames), which the box's forces on the hands follow.
+    # On the generalized accelerations at every running node: the plan chattered between knots
+    # (hands at up to 47 m/s^2 in single frames, which the box's forces on the hands follow, and
+    # joint speeds past their limits in the reach-in); 1.0 made the feedback expert fall.
     acceleration: float = 0.1
 
     def check(self) -> None:
@@ -233,16 +234,16 @@ class BoxPickupTask(PhaseTask):
         held = tuple((h, params["box_mass"] / 2) for h in HANDS) if params["box_mass"] > 0 else ()
         squeeze = self.squeeze_force(params["box_mass"])
 
-        def balance(knot: Knot, terms, carrying: bool = False) -> list:
+        def balance(knot: Knot, terms) -> list:
             out = [("com", terms.com([centre[0], centre[1], 0.0], (1, 1, 0)), w.com),
                    ("base_orientation", terms.rotation(self.robot.config.imu_site, np.eye(3)), w.base_orientation)]
-            if carrying and knot.kind == "running" and w.acceleration > 0:
+            if knot.kind == "running" and w.acceleration > 0:
                 out.append(("acceleration", terms.acceleration(1.0), w.acceleration))
             return out
 
-        def hands_along(path: HandPath, weight: float, carrying: bool):
+        def hands_along(path: HandPath, weight: float):
             def costs(knot: Knot, terms) -> list:
-                out = balance(knot, terms, carrying)
+                out = balance(knot, terms)
                 if knot.kind == "impulse":
                     return []
                 for h, p in path.at(knot.time).items():
@@ -283,7 +284,7 @@ class BoxPickupTask(PhaseTask):
             nonlocal t
             contacts = feet + (grasp_contacts(grasping, normals) if grasping else ())
             path = HandPath(start, end, t, duration)
-            costs = touching(grasping) if grasping else hands_along(path, weight, holding)
+            costs = touching(grasping) if grasping else hands_along(path, weight)
             phases.append(Phase(duration, contacts, costs, label, payload=held if holding else (),
                                 squeeze=squeeze if holding and held else 0.0))
             t += duration
