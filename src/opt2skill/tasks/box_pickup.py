@@ -14,7 +14,9 @@ paper's five phases, as the plan's phases:
 
 While the box is held, the record's hand forces are the box's dynamics plus a squeeze that lets
 friction hold it (`skills.manipulation.held_object_forces`), so feet and hands together balance the
-robot's and the box's momentum. In MuJoCo the box is a free body held by friction alone.
+robot's and the box's momentum; the squeeze grows with the box's mass and its torques are in the
+solve (`Phase.squeeze`), so the torque limits bind on them. In MuJoCo the box is a free body held by
+friction alone.
 
 Checks: the hands' friction cones at the box, and the optimizer's feedback expert in MuJoCo with the
 real shelf and box must put the box within 3 cm of its target (`placement_error`).
@@ -43,7 +45,7 @@ from opt2skill.trajopt.receding import HoldGuess, solve_receding
 from opt2skill.trajopt.settings import ContactSettings, SolverSettings
 from opt2skill.trajopt.skills.locomotion import foot_contact, stand_footholds
 from opt2skill.trajopt.skills.manipulation import (HandPath, contact_radius, end_effector_positions, grasp_contacts,
-                                                   held_object_forces, held_object_poses)
+                                                   held_object_forces, held_object_poses, hold_squeeze)
 from opt2skill.trajopt.skills.stride_guess import RecedingSettings
 from opt2skill.trajopt.solver import Solution
 from opt2skill.trajopt.task_config import TaskConfig
@@ -92,6 +94,10 @@ class BoxWeights:
     squeeze: float = 1e3  # hand forces towards a pure squeeze while the box rests on a board
     com: float = 1e3  # CoM over the middle of the feet
     base_orientation: float = 3e3  # upright: a leaning torso meets the box or the board above
+    # On the generalized accelerations at every running node: the plan chattered between knots
+    # (hands at up to 47 m/s^2 in single frames, which the box's forces on the hands follow, and
+    # joint speeds past their limits in the reach-in); 1.0 made the feedback expert fall.
+    acceleration: float = 0.1
 
     def check(self) -> None:
         require(all(v >= 0 for v in vars(self).values()), "box weights must be >= 0")
@@ -116,9 +122,18 @@ class BoxPickupConfig(TaskConfig):
     pregrasp: float = 0.08  # m beside a face before closing on it
     retract: float = 0.05  # m the box is pulled back (towards the robot) when lifted
     lift: float = 0.04  # m the box is lifted off a board
+    # m above the target board the box is carried in over it. In MuJoCo a held box creeps down
+    # between the hands (soft friction: about 1 cm/s under its weight, whatever the squeeze), so
+    # by then it hangs 3 to 4 cm lower than planned and scraped the board's edge at `lift`.
+    carry_clearance: float = 0.08
     board_gap: float = 0.1  # m of free height above the box on the lower board, at least
     edge_clearance: float = 0.04  # m between the box and a board's front edge when it passes the board
-    squeeze: float = 20.0  # N each hand presses on the box while it rests on a board
+    squeeze: float = 20.0  # N each hand presses on the box at least (on a board and while carrying it)
+    # While carrying, each hand presses at least enough for friction (the optimizer's cone) to hold
+    # half the box with `hold_margin` while the box accelerates by `hold_acceleration` (m/s^2); the
+    # arms' torques hold that squeeze inside the solve (`skills.manipulation.hold_squeeze`).
+    hold_margin: float = 1.5
+    hold_acceleration: float = 6.0
     # m above the box's centre where the hands press. Two point contacts hold the box's position
     # but not its turn about the line between them: pressed above its centre the box hangs below
     # that line like a pendulum and rights itself; pressed at the centre any knock tilts it for good.
@@ -137,9 +152,12 @@ class BoxPickupConfig(TaskConfig):
         require(0.1 <= self.box_depth <= 0.4 and 0.1 <= self.box_height <= 0.4, "box_depth and box_height must be in [0.1, 0.4] m")
         require(0.02 <= self.pregrasp <= 0.2, "pregrasp must be in [0.02, 0.2] m")
         require(0.0 <= self.squeeze <= 200.0, "squeeze must be in [0, 200] N")
+        require(1.0 <= self.hold_margin <= 5.0 and 0.0 <= self.hold_acceleration <= 20.0,
+                "hold_margin must be in [1, 5], hold_acceleration in [0, 20] m/s^2")
         require(0.0 <= self.grasp_height <= self.box_height / 2 - 0.02,
                 f"grasp_height must be in [0, {self.box_height / 2 - 0.02:g}] m (below the box's top edge)")
-        require(0.0 <= self.retract <= 0.15 and 0.01 <= self.lift <= 0.1, "retract in [0, 0.15] m, lift in [0.01, 0.1] m")
+        require(0.0 <= self.retract <= 0.15 and 0.01 <= self.lift <= 0.1 and 0.01 <= self.carry_clearance <= 0.1,
+                "retract in [0, 0.15] m, lift and carry_clearance in [0.01, 0.1] m")
         for section in (self.timing, self.weights, self.thresholds, self.receding):
             section.check()
 
@@ -209,15 +227,19 @@ class BoxPickupTask(PhaseTask):
         # Around the boards: out past the shelf's front edge, to the other board's height, in above it.
         clear = self.front_edge(params) - cfg.box_depth / 2 - cfg.edge_clearance - source[0]
         out_here = {h: grasp[h] + np.array([clear, 0.0, cfg.lift]) for h in HANDS}
-        out_there = {h: place[h] + np.array([clear, 0.0, cfg.lift]) for h in HANDS}
-        above = {h: place[h] + np.array([0.0, 0.0, cfg.lift]) for h in HANDS}
+        out_there = {h: place[h] + np.array([clear, 0.0, cfg.carry_clearance]) for h in HANDS}
+        above = {h: place[h] + np.array([0.0, 0.0, cfg.carry_clearance]) for h in HANDS}
         clear_of_board = {h: wide_at_target[h] + np.array([clear, 0.0, 0.0]) for h in HANDS}
         approach = {h: wide[h] + np.array([clear, 0.0, 0.0]) for h in HANDS}  # in front of the board edge
         held = tuple((h, params["box_mass"] / 2) for h in HANDS) if params["box_mass"] > 0 else ()
+        squeeze = self.squeeze_force(params["box_mass"])
 
         def balance(knot: Knot, terms) -> list:
-            return [("com", terms.com([centre[0], centre[1], 0.0], (1, 1, 0)), w.com),
-                    ("base_orientation", terms.rotation(self.robot.config.imu_site, np.eye(3)), w.base_orientation)]
+            out = [("com", terms.com([centre[0], centre[1], 0.0], (1, 1, 0)), w.com),
+                   ("base_orientation", terms.rotation(self.robot.config.imu_site, np.eye(3)), w.base_orientation)]
+            if knot.kind == "running" and w.acceleration > 0:
+                out.append(("acceleration", terms.acceleration(1.0), w.acceleration))
+            return out
 
         def hands_along(path: HandPath, weight: float):
             def costs(knot: Knot, terms) -> list:
@@ -236,7 +258,7 @@ class BoxPickupTask(PhaseTask):
                     # A pure squeeze: opposite forces along the faces' normals, so the hands add no net
                     # force to the box and it rests on its board (the optimizer sees no box).
                     out = balance(knot, terms) + [
-                        (f"{h}_squeeze", terms.contact_force(self.builder.frame_id(h), cfg.squeeze * normals[h], (1, 1, 1)),
+                        (f"{h}_squeeze", terms.contact_force(self.builder.frame_id(h), squeeze * normals[h], (1, 1, 1)),
                          w.squeeze) for h in points]
                     if knot.phase_time == 0.0:
                         # Hands that put the box down become contacts without an impact: they must
@@ -263,7 +285,8 @@ class BoxPickupTask(PhaseTask):
             contacts = feet + (grasp_contacts(grasping, normals) if grasping else ())
             path = HandPath(start, end, t, duration)
             costs = touching(grasping) if grasping else hands_along(path, weight)
-            phases.append(Phase(duration, contacts, costs, label, payload=held if holding else ()))
+            phases.append(Phase(duration, contacts, costs, label, payload=held if holding else (),
+                                squeeze=squeeze if holding and held else 0.0))
             t += duration
 
         add(T.stand, "stand", home, home)
@@ -283,6 +306,13 @@ class BoxPickupTask(PhaseTask):
         add(T.rest, "stand", home, home)
         return Plan(phases=phases, x0=x0, scene=self.scene(params), context=params)
 
+    def squeeze_force(self, mass: float) -> float:
+        """N each hand presses on a box of `mass` kg, on a board and while carrying it: the same on
+        both, so nothing jumps when the box leaves a board."""
+        cfg = self.config
+        mu = self.robot.config.friction_coefficient * cfg.contact.friction_scale
+        return max(cfg.squeeze, hold_squeeze(mass, mu, cfg.hold_margin, cfg.hold_acceleration))
+
     def optimize(self, problem: Problem, plan: Plan) -> Solution:
         rc = self.config.receding
         if not rc.enabled:
@@ -295,8 +325,7 @@ class BoxPickupTask(PhaseTask):
         frames.prop_poses = {"box": _box_poses(self.robot, plan.scene.prop("box"), self.box_centres(params)[1],
                                                problem, frames)}
         if params["box_mass"] > 0:
-            mu = self.robot.config.friction_coefficient * self.config.contact.friction_scale
-            held_object_forces(self.robot, problem, frames, knots, HANDS, params["box_mass"], mu)
+            held_object_forces(self.robot, problem, frames, knots, HANDS)
         return frames
 
     # -- checks ----------------------------------------------------------------------------------

@@ -39,6 +39,12 @@ class Terms:
         residual = crocoddyl.ResidualModelControl(self.state, u_ref)
         return self._weighted(residual, np.broadcast_to(weights, (self.nu,)))
 
+    def acceleration(self, weights: np.ndarray | float):
+        """sum (w_i a_i)^2 over the generalized accelerations (running nodes: the dynamics' output)."""
+        nv = self.state.nv
+        residual = crocoddyl.ResidualModelJointAcceleration(self.state, np.zeros(nv), self.nu)
+        return self._weighted(residual, np.broadcast_to(weights, (nv,)))
+
     def state_bounds(self, lb: np.ndarray, ub: np.ndarray):
         """Quadratic barrier outside [lb, ub] on x - x_neutral (joint ranges and speed limits)."""
         pm = self.state.pinocchio

@@ -28,6 +28,7 @@ from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.trajopt.costs import Terms
 from opt2skill.trajopt.integrator import MatchedEulerModel
+from opt2skill.trajopt.squeeze import SqueezeActuation
 from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights
 
 
@@ -75,6 +76,10 @@ class Phase:
     # Point masses the robot carries in this phase: (end effector, kg), e.g. half a held box at each
     # hand. The phase's dynamics is the robot's with these masses at those points (docs/trajopt.md).
     payload: tuple[tuple[str, float], ...] = ()
+    # N each of the payload's two points presses on what it holds (an equal and opposite pair along
+    # the line between them, so friction can hold the object): the arms' torques hold it
+    # (`trajopt.squeeze`), so the solver's torque bounds see it.
+    squeeze: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -205,7 +210,7 @@ class ProblemBuilder:
     # -- nodes ---------------------------------------------------------------------------------
 
     def _running_model(self, phase: Phase, knot: Knot, dt: float, with_costs: bool, integrator: str = "euler"):
-        state, actuation = self._carrying(phase.payload)
+        state, actuation = self._carrying(phase.payload, phase.squeeze)
         contacts = crocoddyl.ContactModelMultiple(state, self.nu)
         for c in phase.contacts:
             contacts.addContact(c.name, self._contact_model(c, state, knot.time))
@@ -228,7 +233,7 @@ class ProblemBuilder:
         return crocoddyl.IntegratedActionModelRK(dam, rk, dt)
 
     def _impulse_model(self, starting: list[Contact], phase: Phase, knot: Knot, with_costs: bool):
-        state, _ = self._carrying(phase.payload)
+        state, _ = self._carrying(phase.payload, phase.squeeze)
         impulses = crocoddyl.ImpulseModelMultiple(state)
         for c in starting:
             fid = self.frame_id(c.name)
@@ -261,24 +266,33 @@ class ProblemBuilder:
             point = np.asarray(p, float) + (kd * np.asarray(v, float) + np.asarray(a, float)) / kp
         return crocoddyl.ContactModel3D(state, fid, point, pin.LOCAL_WORLD_ALIGNED, self.nu, gains)
 
-    def _carrying(self, payload: tuple[tuple[str, float], ...]):
-        """State and actuation of the robot carrying point masses at end effectors (cached).
+    def _carrying(self, payload: tuple[tuple[str, float], ...], squeeze: float = 0.0):
+        """State and actuation of the robot carrying point masses at end effectors (cached), the
+        two points squeezing what they hold with `squeeze` N (`trajopt.squeeze`).
 
         A point mass m at a point p of a body adds m J_p^T (a_p - g) to the equations of motion, so
         the robot-only dynamics of the same motion balances with the force m (g - a_p) at p: that
         is the held object's force on the robot the record stores (no rotational inertia, exact)."""
         if not payload:
+            if squeeze:
+                raise ConfigError("a phase's squeeze needs a payload held at two points")
             return self.state, self.actuation
-        key = tuple(sorted(payload))
+        key = (tuple(sorted(payload)), float(squeeze))
         if key not in self._payload_states:
             model = pin.Model(self.robot.pin_model)
-            for name, mass in key:
+            for name, mass in key[0]:
                 frame = model.frames[self.frame_id(name)]
                 lever = frame.placement.translation
                 model.inertias[frame.parentJoint] = model.inertias[frame.parentJoint] + pin.Inertia(
                     float(mass), lever, np.zeros((3, 3)))
             state = crocoddyl.StateMultibody(model)
-            self._payload_states[key] = (model, state, crocoddyl.ActuationModelFloatingBase(state))
+            if squeeze:
+                if len(payload) != 2:
+                    raise ConfigError(f"a squeeze needs a payload held at two points, not {len(payload)}")
+                actuation = SqueezeActuation(state, tuple(self.frame_id(name) for name, _ in payload), squeeze)
+            else:
+                actuation = crocoddyl.ActuationModelFloatingBase(state)
+            self._payload_states[key] = (model, state, actuation)
         _, state, actuation = self._payload_states[key]
         return state, actuation
 

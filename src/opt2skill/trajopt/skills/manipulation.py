@@ -5,12 +5,13 @@ payload, and the record's hand forces while it is held.
 - `grasp_contacts`: the hands as 3D point contacts at grasp points, each friction cone's normal the
   outward normal of the face it presses on (the force on the robot pushes the hand out of the face).
 - Carrying: a phase with `payload` has the object's mass split between the hands (its centre of
-  mass exact, its rotational inertia left out). `held_object_forces` turns the optimizer's frames of
-  those phases into the record's: each hand gets the object's share of its dynamics, m_i (g - a_i),
-  plus an equal and opposite squeeze along the line between the hands, large enough for friction
-  to hold the object; the squeeze's joint torques are added to the arms. The squeeze pair exerts no
-  net force or moment on the robot (its forces are opposite and on one line), so the robot-only
-  equations of motion of every frame still balance exactly.
+  mass exact, its rotational inertia left out) and a `squeeze` the arms hold inside the solver's
+  dynamics (`trajopt.squeeze`; `hold_squeeze` sizes it for friction to carry the object).
+  `held_object_forces` writes the record's hand forces of those phases: each hand gets the object's
+  share of its dynamics, m_i (g - a_i), plus the equal and opposite squeeze along the line between
+  the hands. The squeeze pair exerts no net force or moment on the robot (its forces are opposite
+  and on one line), so the robot-only equations of motion of every frame balance exactly with the
+  solver's torques.
 """
 
 from __future__ import annotations
@@ -105,81 +106,58 @@ def sliding_contact(hand: str, path: HandPath, normal: np.ndarray, min_normal_fo
                    path=lambda t: path.motion(hand, t), min_normal_force=min_normal_force)
 
 
-def held_object_forces(robot: Robot, problem: Problem, frames: Frames, knots: dict, hands: tuple[str, str],
-                       mass: float, mu: float, margin: float = 1.5, min_squeeze: float = 10.0) -> float:
-    """Fill `frames` and the solver's `knots` (in place) over the phases that carry a payload: the
-    hands' forces and the squeeze's torques; returns the squeeze (N). `mu`: the hand-object friction
-    the squeeze must respect, with `margin` on the largest tangential force."""
-    hold = _Hold(robot, problem, hands, mass / 2.0)
-    rows = np.flatnonzero(_carried_frames(problem, len(frames.q)))
-    if not len(rows):
-        return 0.0
+def hold_squeeze(mass: float, mu: float, margin: float, acceleration: float) -> float:
+    """N each of two hands must press on an object of `mass` kg held between them so that friction
+    (coefficient `mu`) carries its half of the weight while it accelerates by up to `acceleration`
+    m/s^2 in any direction, with `margin` (> 1) on that."""
+    return margin * (mass / 2.0) * (abs(GRAVITY[2]) + acceleration) / mu
+
+
+def held_object_forces(robot: Robot, problem: Problem, frames: Frames, knots: dict, hands: tuple[str, str]) -> None:
+    """Fill the hands' forces of `frames` and the solver's `knots` (in place) over the phases that
+    carry a payload: each hand's share of the object's dynamics, m_i (g - a_i), plus the phase's
+    squeeze pushing it away from the other hand along the line between them. The squeeze's torques
+    are already the solver's (`Phase.squeeze`, `trajopt.squeeze`)."""
+    hold = _Hold(robot, problem, hands)
     nq = robot.pin_model.nq
+    x = np.asarray(knots["x"])
     v_next = np.vstack([frames.v[1:], frames.v[-1:]])
-    shares, axes = hold.shares(frames.q[rows], frames.v[rows], (v_next[rows] - frames.v[rows]) / FRAME_DT)
-    # Squeeze: the first hand is pushed along +axis (out of the object), the second along -axis.
-    along = np.stack([np.einsum("ij,ij->i", shares[:, 0], axes), -np.einsum("ij,ij->i", shares[:, 1], axes)], 1)
-    tangential = np.linalg.norm(shares - along[:, :, None] * np.stack([axes, -axes], 1), axis=2)
-    squeeze = max(min_squeeze, float(np.max(margin * tangential / mu - along)))
-    hold.apply(frames.q[rows], shares, axes, squeeze, frames.tau, frames.wrench, frames.active, rows)
-    running = [k for k, node in enumerate(problem.nodes[:-1])
-               if node.kind == "running" and problem.phases[node.phase_index].payload]
-    if running:
-        x = np.asarray(knots["x"])
-        dt = np.asarray(knots["dt"])[running]
-        q, v = x[running, :nq], x[running, nq:]
-        shares, axes = hold.shares(q, v, (x[np.array(running) + 1, nq:] - v) / dt[:, None])
-        active = np.zeros(knots["contact_force"].shape[:2], dtype=bool)
-        hold.apply(q, shares, axes, squeeze, knots["u"], knots["contact_force"], active, np.array(running))
-    return squeeze
+    for k, node in enumerate(problem.nodes[:-1]):
+        phase = problem.phases[node.phase_index]
+        if node.kind != "running" or not phase.payload:
+            continue
+        masses = np.array([dict(phase.payload)[h] for h in hands])
+        rows = np.arange(int(round(node.time / FRAME_DT)), int(round((node.time + node.dt) / FRAME_DT)))
+        a = (v_next[rows] - frames.v[rows]) / FRAME_DT
+        hold.apply(frames.q[rows], frames.v[rows], a, masses, phase.squeeze, rows, frames.wrench, frames.active)
+        v = x[k, nq:]
+        hold.apply(x[k : k + 1, :nq], v[None], ((x[k + 1, nq:] - v) / node.dt)[None], masses, phase.squeeze,
+                   np.array([k]), knots["contact_force"], np.zeros(knots["contact_force"].shape[:2], dtype=bool))
 
 
 class _Hold:
-    """The hands' share of a held object's dynamics, and the squeeze's forces and torques."""
+    """The hands' share of a held object's dynamics plus the squeeze, as contact forces."""
 
-    def __init__(self, robot: Robot, problem: Problem, hands: tuple[str, str], share: float):
+    def __init__(self, robot: Robot, problem: Problem, hands: tuple[str, str]):
         self.pm = robot.pin_model
         self.pd = self.pm.createData()
         self.fids = [robot.pin_frame_id(robot.config.end_effectors[h]) for h in hands]
         self.cols = [list(problem.contact_names).index(h) for h in hands]
-        self.share = share
 
-    def shares(self, q: np.ndarray, v: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """m_i (g - a_i) at each hand (n, 2, 3) and the unit axis from the second hand to the first."""
-        pm, pd = self.pm, self.pd
-        forces, axes = np.zeros((len(q), 2, 3)), np.zeros((len(q), 3))
-        for r in range(len(q)):
-            pin.forwardKinematics(pm, pd, q[r], v[r], a[r])
-            pin.updateFramePlacements(pm, pd)
-            for i, fid in enumerate(self.fids):
-                forces[r, i] = self.share * (GRAVITY - pin.getFrameClassicalAcceleration(pm, pd, fid, pin.LOCAL_WORLD_ALIGNED).linear)
-            d = pd.oMf[self.fids[0]].translation - pd.oMf[self.fids[1]].translation
-            axes[r] = d / np.linalg.norm(d)
-        return forces, axes
-
-    def apply(self, q, shares, axes, squeeze, tau, wrench, active, rows) -> None:
+    def apply(self, q, v, a, masses, squeeze, rows, wrench, active) -> None:
+        """Per state r: the first hand's force m_1 (g - a_1) + s axis, the second's m_2 (g - a_2) - s
+        axis (axis: the unit vector from the second hand to the first), into wrench[rows[r]]."""
         pm, pd = self.pm, self.pd
         for r, k in enumerate(rows):
-            pin.computeJointJacobians(pm, pd, q[r])
+            pin.forwardKinematics(pm, pd, q[r], v[r], a[r])
             pin.updateFramePlacements(pm, pd)
-            push = (squeeze * axes[r], -squeeze * axes[r])
-            generalized = sum(pin.getFrameJacobian(pm, pd, fid, pin.LOCAL_WORLD_ALIGNED)[:3].T @ p
-                              for fid, p in zip(self.fids, push))
-            tau[k] -= generalized[6:]  # the arms hold the squeeze; its base part is zero
-            for i, c in enumerate(self.cols):
-                wrench[k, c, :3] = shares[r, i] + push[i]
+            gap = pd.oMf[self.fids[0]].translation - pd.oMf[self.fids[1]].translation
+            push = squeeze * gap / np.linalg.norm(gap)
+            for i, (fid, c) in enumerate(zip(self.fids, self.cols)):
+                accel = pin.getFrameClassicalAcceleration(pm, pd, fid, pin.LOCAL_WORLD_ALIGNED).linear
+                wrench[k, c, :3] = masses[i] * (GRAVITY - accel) + (push if i == 0 else -push)
                 wrench[k, c, 3:] = 0.0
                 active[k, c] = True
-
-
-def _carried_frames(problem: Problem, n_frames: int) -> np.ndarray:
-    """(T,) bool: frames whose step lies in a phase with a payload (by the nodes' times)."""
-    out = np.zeros(n_frames, dtype=bool)
-    for node in problem.nodes:
-        if node.kind == "running" and problem.phases[node.phase_index].payload:
-            k0 = int(round(node.time / FRAME_DT))
-            out[k0 : k0 + int(round(node.dt / FRAME_DT))] = True
-    return out
 
 
 def held_object_poses(robot: Robot, q: np.ndarray, held: np.ndarray, hands: tuple[str, str],
