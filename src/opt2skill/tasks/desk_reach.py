@@ -81,6 +81,7 @@ class ReachWeights:
     leaning: float = 1e2  # torso orientation while the elbow is down
     clearance: float = 1e6  # the left elbow above the desk top (no collisions in the optimizer otherwise)
     elbow_sideways: float = 1.0  # per N^2: the resting elbow's force along the desk (the feet balance it)
+    unload: float = 1.0  # per N^2: the elbow's normal force towards elbow_min_force before it lifts
 
     def check(self) -> None:
         require(all(v >= 0 for v in vars(self).values()), "desk reach weights must be >= 0")
@@ -172,6 +173,9 @@ class DeskReachTask(DeskTask):
                 out = standing.along(terms, knot, path, names)
                 if supported and terms.nu > 0 and w.elbow_sideways > 0:
                     out.append(("elbow_sideways", terms.contact_force(elbow_id, np.zeros(3), (1, 1, 0)), w.elbow_sideways))
+                if supported and not leaning and terms.nu > 0 and w.unload > 0:  # the weight back on the feet
+                    least = np.array([0.0, 0.0, cfg.elbow_min_force])
+                    out.append(("elbow_unload", terms.contact_force(elbow_id, least, (0, 0, 1)), w.unload))
                 out.append(("left_elbow_above", terms.above(self.robot.config.end_effectors["left_elbow"], clearance),
                             w.clearance))
                 if leaning:
