@@ -3,12 +3,13 @@
 The robot stands at a desk (top at `desk_height`). The paper's five phases:
 
 1. the right hand moves to its target on the desk, the right elbow above its support point;
-2. the right elbow comes down on the desk and holds contact: a 3D point contact (the elbow's site,
-   inside the arm's capsules) with a friction cone along the desk's normal and a least normal force
-   (`elbow_min_force`), so it carries part of the robot;
+2. the right elbow comes down on the desk, at rest, and holds contact: a 3D point contact (the
+   elbow's site, inside the arm's capsules) with a friction cone along the desk's normal and a least
+   normal force (`elbow_min_force`), so it carries part of the robot; it leans on the desk rather
+   than pushing along it (the feet would balance that push, and in MuJoCo they creep under it);
 3. the left hand reaches its target (`target_x` ahead of the base, beyond the feet) and returns;
-4. the CoM comes back over the feet while the elbow still holds, then the elbow releases (lifts off
-   the desk);
+4. the CoM comes back over the feet and the elbow unloads to its least force while it still holds,
+   then the elbow releases (lifts off the desk);
 5. the torso and hands return to the stand pose.
 
 Checks: the hands at their targets (`hand_error`, cm: the left at the reach's end, the right at the
@@ -166,7 +167,7 @@ class DeskReachTask(DeskTask):
                 if knot.kind == "impulse":  # the elbow touches the desk at its support point, at rest
                     site = self.robot.config.end_effectors[ELBOW]
                     # the velocity entering the impact: the lean's last nodes alone left the plan
-                    # free to drive the elbow into the desk at 0.3 m/s in the step before it
+                    # free to drive the elbow into the desk at 0.4 m/s in the step before it
                     return [("elbow_touch", terms.translation(site, goal[ELBOW]), w.touch),
                             ("elbow_landing", terms.velocity(site, np.zeros(6), (1, 1, 1, 0, 0, 0)), w.landing)]
                 names = [n for n in MOVING if not (supported and n == ELBOW)]
