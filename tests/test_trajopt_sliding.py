@@ -117,3 +117,7 @@ def test_a_touchdown_impulse_holds_the_fixed_contacts_that_continue_through_it(r
     assert np.abs(J_feet @ v_after).max() < 1e-8
     assert np.abs(jac("left_elbow")[:3] @ v_after).max() < 1e-8
     assert np.abs(jac("left_elbow")[:3] @ v).max() > 0.05  # it did come in moving
+    # the old rule, kept for the box pickup: only the touching-down contact is in the impulse
+    old = ProblemBuilder(robot, ContactSettings(impacts_hold=False), FeasibilityWeights()).build(
+        phases, stand.x0, 0.02, with_costs=False)
+    assert [n.contacts for n in old.nodes if n.kind == "impulse"] == [("left_elbow",)]

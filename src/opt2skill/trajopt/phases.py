@@ -145,7 +145,8 @@ class ProblemBuilder:
             if index > 0 and starting and self.contact.impacts:
                 knot = Knot(t, index, 0.0, "impulse")
                 # a sliding contact moves through the impact: an impulse would stop it
-                rigid = [c for c in phase.contacts if c.name not in previous or (c.name in held and c.path is None)]
+                rigid = [c for c in phase.contacts if c.name not in previous
+                         or (self.contact.impacts_hold and c.name in held and c.path is None)]
                 models.append(self._impulse_model(rigid, phase, knot, with_costs))
                 nodes.append(Node(t, 0.0, "impulse", index, tuple(sorted(c.name for c in rigid)),
                                   tuple(c.name for c in starting)))
