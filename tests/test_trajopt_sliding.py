@@ -12,7 +12,7 @@ from opt2skill.scene.build import build_model
 from opt2skill.scene.description import Scene
 from opt2skill.scene.props import Desk
 from opt2skill.trajopt.costs import Terms
-from opt2skill.trajopt.phases import Phase, ProblemBuilder
+from opt2skill.trajopt.phases import Contact, Phase, ProblemBuilder
 from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights
 from opt2skill.trajopt.skills.desk import Stand
 from opt2skill.trajopt.skills.manipulation import HandPath, contact_radius, sliding_contact
@@ -81,3 +81,43 @@ def test_a_props_friction_is_its_contacts_friction_in_mujoco(robot):
     hand = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "right_hand")
     assert model.geom_priority[desk] > model.geom_priority[hand]
     assert model.geom_friction[desk, 0] == pytest.approx(0.3) and model.geom_friction[hand, 0] == pytest.approx(1.0)
+
+
+def test_a_touchdown_impulse_holds_the_fixed_contacts_that_continue_through_it(robot):
+    """The elbow touching down while the feet stand and a hand slides: the impulse model has the
+    feet (they are rigid at the impact, so it leaves them at rest) and the elbow, not the sliding
+    hand (an impulse would stop it)."""
+    builder = ProblemBuilder(robot, ContactSettings(), FeasibilityWeights())
+    stand = Stand.of(robot)
+    start = stand.home["right_hand"]
+    path = HandPath({"right_hand": start}, {"right_hand": start + [0.1, 0.0, 0.0]}, 0.0, 0.4)
+    hand = sliding_contact("right_hand", path, np.array([0.0, 0.0, 1.0]), min_normal_force=0.0)
+    elbow = Contact("left_elbow", pin.SE3(np.eye(3), stand.home["left_elbow"]), flat=False)
+    phases = [Phase(0.2, stand.feet + (hand,), lambda knot, terms: []),
+              Phase(0.2, stand.feet + (hand, elbow), lambda knot, terms: [])]
+    problem = builder.build(phases, stand.x0, 0.02, with_costs=False)
+    [k] = [k for k, n in enumerate(problem.nodes) if n.kind == "impulse"]
+    feet = tuple(c.name for c in stand.feet)
+    assert problem.nodes[k].touching == ("left_elbow",)
+    assert set(problem.nodes[k].contacts) == {*feet, "left_elbow"}
+    # Coming in with the feet at rest and the rest of the robot moving: after the impact the feet
+    # and the elbow are at rest (Crocoddyl's impulse dynamics, not a bookkeeping of names).
+    pm, pd = robot.pin_model, robot.pin_model.createData()
+    q = robot.stand_q_pin
+    pin.computeJointJacobians(pm, pd, q)
+    pin.updateFramePlacements(pm, pd)
+    jac = lambda name: pin.getFrameJacobian(pm, pd, builder.frame_id(name), pin.LOCAL_WORLD_ALIGNED)
+    J_feet = np.vstack([jac(f) for f in feet])
+    rng = np.random.default_rng(0)
+    v = rng.normal(0.0, 0.3, robot.nv)
+    v -= np.linalg.pinv(J_feet) @ (J_feet @ v)  # feet at rest before the impact
+    model, data = problem.shooting.runningModels[k], problem.shooting.runningDatas[k]
+    model.calc(data, np.concatenate([q, v]))
+    v_after = data.xnext[pm.nq:]
+    assert np.abs(J_feet @ v_after).max() < 1e-8
+    assert np.abs(jac("left_elbow")[:3] @ v_after).max() < 1e-8
+    assert np.abs(jac("left_elbow")[:3] @ v).max() > 0.05  # it did come in moving
+    # the old rule, kept for the box pickup: only the touching-down contact is in the impulse
+    old = ProblemBuilder(robot, ContactSettings(impacts_hold=False), FeasibilityWeights()).build(
+        phases, stand.x0, 0.02, with_costs=False)
+    assert [n.contacts for n in old.nodes if n.kind == "impulse"] == [("left_elbow",)]

@@ -145,7 +145,10 @@ class BoxPickupConfig(TaskConfig):
     # Legs ten times stiffer than walking's: with the boards' heights no squat is needed, and a
     # soft posture let the optimizer dip and bounce the base to help the hands along.
     posture: Posture = field(default_factory=lambda: Posture(legs=30.0, leg_velocity=3.0, base_velocity=10.0))
-    contact: ContactSettings = field(default_factory=lambda: ContactSettings(min_normal_force=10.0))
+    # The hands' touchdown impulses without the feet (the builder's old rule): with the feet held in
+    # them the test record's plan was cheaper (cost 16.4k against 31.3k) but the box, swinging
+    # below the hands, was put down on its side in MuJoCo (tilt 90 degrees against 0.16); not re-tuned.
+    contact: ContactSettings = field(default_factory=lambda: ContactSettings(min_normal_force=10.0, impacts_hold=False))
     solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.02, max_iter=200, reg_init=1e-4))
 
     def check_own(self) -> None:

@@ -3,12 +3,13 @@
 The robot stands at a desk (top at `desk_height`). The paper's five phases:
 
 1. the right hand moves to its target on the desk, the right elbow above its support point;
-2. the right elbow comes down on the desk and holds contact: a 3D point contact (the elbow's site,
-   inside the arm's capsules) with a friction cone along the desk's normal and a least normal force
-   (`elbow_min_force`), so it carries part of the robot;
+2. the right elbow comes down on the desk, at rest, and holds contact: a 3D point contact (the
+   elbow's site, inside the arm's capsules) with a friction cone along the desk's normal and a least
+   normal force (`elbow_min_force`), so it carries part of the robot; it leans on the desk rather
+   than pushing along it (the feet would balance that push, and in MuJoCo they creep under it);
 3. the left hand reaches its target (`target_x` ahead of the base, beyond the feet) and returns;
-4. the CoM comes back over the feet while the elbow still holds, then the elbow releases (lifts off
-   the desk);
+4. the CoM comes back over the feet and the elbow unloads to its least force while it still holds,
+   then the elbow releases (lifts off the desk);
 5. the torso and hands return to the stand pose.
 
 Checks: the hands at their targets (`hand_error`, cm: the left at the reach's end, the right at the
@@ -73,12 +74,15 @@ class ReachWeights:
     target: float = 1e6  # the hands at their targets (the phases' ends)
     touch: float = 1e6  # the elbow where it touches the desk (impulse node)
     still: float = 1e4  # ... and at rest there (a hard touchdown's impulse made the feet slip 6 to 8 mm)
+    landing: float = 1e4  # the elbow's velocity entering its touchdown impulse
     com: float = 1e3  # CoM over the middle of the feet (standing phases)
     com_supported: float = 1e2  # ... while the elbow carries part of the robot
     base_orientation: float = 1e3
     feet: float = 1e-2  # each foot's wrench towards half the weight (skills.desk.StandingCosts)
     leaning: float = 1e2  # torso orientation while the elbow is down
     clearance: float = 1e6  # the left elbow above the desk top (no collisions in the optimizer otherwise)
+    elbow_sideways: float = 1.0  # per N^2: the resting elbow's force along the desk (the feet balance it)
+    unload: float = 1.0  # per N^2: the elbow's normal force towards elbow_min_force before it lifts
 
     def check(self) -> None:
         require(all(v >= 0 for v in vars(self).values()), "desk reach weights must be >= 0")
@@ -99,7 +103,10 @@ class DeskReachConfig(DeskConfig):
     desk_depth: float = 0.8  # m: the far target stays over it
     reachable: tuple[float, float] = (0.85, 1.05)  # m, desk tops the elbow rests on standing
     elbow_at: tuple[float, float] = (0.33, -0.22)  # m, the elbow's support point ahead of / beside the base
-    support_hand: tuple[float, float, float] = (0.55, -0.12, 0.06)  # m, the right hand's target (x, y ahead; z above the desk)
+    # m, the right hand's target (x, y ahead; z above the desk): where the forearm lies with the elbow on
+    # its support point (at (0.55, -0.12, 0.06) the elbow could not reach that point with the hand
+    # there, and the plan swung both forward at 0.7 m/s in the last 0.1 s before the touchdown)
+    support_hand: tuple[float, float, float] = (0.66, -0.07, 0.09)
     hover: float = 0.04  # m above its support point before the elbow comes down
     elbow_min_force: float = 5.0  # N, the least normal force on the resting elbow
     timing: Timing = field(default_factory=Timing)
@@ -151,15 +158,25 @@ class DeskReachTask(DeskTask):
         above = goal[ELBOW] + cfg.hover * UP
         elbow = Contact(ELBOW, pin.SE3(normal_frame(UP), goal[ELBOW]), flat=False, min_normal_force=cfg.elbow_min_force)
         where = {n: stand.home[n] for n in MOVING}
+        elbow_id = self.robot.pin_frame_id(self.robot.config.end_effectors[ELBOW])
         phases: list[Phase] = []
         t = 0.0
 
         def costs_of(path: HandPath, supported: bool, leaning: bool, ends: dict[str, np.ndarray]):
             def costs(knot: Knot, terms) -> list:
-                if knot.kind == "impulse":  # the elbow touches the desk at its support point
-                    return [("elbow_touch", terms.translation(self.robot.config.end_effectors[ELBOW], goal[ELBOW]), w.touch)]
+                if knot.kind == "impulse":  # the elbow touches the desk at its support point, at rest
+                    site = self.robot.config.end_effectors[ELBOW]
+                    # the velocity entering the impact: the lean's last nodes alone left the plan
+                    # free to drive the elbow into the desk at 0.4 m/s in the step before it
+                    return [("elbow_touch", terms.translation(site, goal[ELBOW]), w.touch),
+                            ("elbow_landing", terms.velocity(site, np.zeros(6), (1, 1, 1, 0, 0, 0)), w.landing)]
                 names = [n for n in MOVING if not (supported and n == ELBOW)]
                 out = standing.along(terms, knot, path, names)
+                if supported and terms.nu > 0 and w.elbow_sideways > 0:
+                    out.append(("elbow_sideways", terms.contact_force(elbow_id, np.zeros(3), (1, 1, 0)), w.elbow_sideways))
+                if supported and not leaning and terms.nu > 0 and w.unload > 0:  # the weight back on the feet
+                    least = np.array([0.0, 0.0, cfg.elbow_min_force])
+                    out.append(("elbow_unload", terms.contact_force(elbow_id, least, (0, 0, 1)), w.unload))
                 out.append(("left_elbow_above", terms.above(self.robot.config.end_effectors["left_elbow"], clearance),
                             w.clearance))
                 if leaning:

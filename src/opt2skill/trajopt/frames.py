@@ -237,7 +237,7 @@ def _anchor_touchdowns(problem: Problem, k: int, x: np.ndarray) -> None:
     shooting = problem.shooting
     impulse_data = shooting.runningDatas[k]
     oMf = impulse_data.multibody.pinocchio.oMf
-    for name in problem.nodes[k].contacts:
+    for name in problem.nodes[k].touching:
         placement = oMf[problem.frame_ids[name]].copy()
         models = list(shooting.runningModels[k + 1 :]) + [shooting.terminalModel]
         shift = None  # a point contact's references all move by its miss (a sliding one keeps its path)

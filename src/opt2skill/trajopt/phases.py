@@ -6,7 +6,10 @@ its motion as `Phase`s; `ProblemBuilder` turns them into a Crocoddyl shooting pr
 - one running node per solver step, with contact forward dynamics
   (`DifferentialActionModelContactFwdDynamics`) of exactly the phase's contacts (one contact model
   per phase: deactivating contacts inside one model stops FDDP, crocoddyl issue 1250);
-- an impulse node where a contact starts (the touchdown impact), when impacts are enabled;
+- an impulse node where a contact starts (the touchdown impact), when impacts are enabled; the
+  fixed contacts that hold through it are in its impulse model too (they are rigid at the impact,
+  as in a real one: without them the impact's velocity change moved a stance foot, which its
+  Baumgarte term then pulled back; sliding contacts stay out, an impulse would stop them);
 - a terminal node with the last phase's contacts;
 - at every node the task's costs (`Phase.costs`) plus the physical limits every task shares: wrench
   cone (friction and centre of pressure) of each stance contact, joint position and velocity ranges.
@@ -88,7 +91,8 @@ class Node:
     dt: float  # 0 for impulse and terminal nodes
     kind: str
     phase_index: int
-    contacts: tuple[str, ...]  # active contacts (for impulse nodes: the contacts that touch down)
+    contacts: tuple[str, ...]  # active contacts (impulse nodes: those in the impulse model)
+    touching: tuple[str, ...] = ()  # impulse nodes: the contacts that touch down
 
 
 @dataclass
@@ -136,6 +140,7 @@ class ProblemBuilder:
         models = []
         t = 0.0
         previous: set[str] = set()
+        held: set[str] = set()
         phase_start = []
         for index, phase in enumerate(phases):
             phase_start.append(t)
@@ -144,8 +149,12 @@ class ProblemBuilder:
             starting = [c for c in phase.contacts if c.name not in previous]
             if index > 0 and starting and self.contact.impacts:
                 knot = Knot(t, index, 0.0, "impulse")
-                models.append(self._impulse_model(starting, phase, knot, with_costs))
-                nodes.append(Node(t, 0.0, "impulse", index, tuple(c.name for c in starting)))
+                # a sliding contact moves through the impact: an impulse would stop it
+                rigid = [c for c in phase.contacts if c.name not in previous
+                         or (self.contact.impacts_hold and c.name in held and c.path is None)]
+                models.append(self._impulse_model(rigid, phase, knot, with_costs))
+                nodes.append(Node(t, 0.0, "impulse", index, tuple(sorted(c.name for c in rigid)),
+                                  tuple(c.name for c in starting)))
             offset = 0.0
             for node_dt in durations:
                 knot = Knot(t + offset, index, offset, "running")
@@ -156,6 +165,7 @@ class ProblemBuilder:
             # A hand that held a payload already touches what it puts down: no impact when it becomes
             # a contact again (the record keeps it active throughout).
             previous = names | {name for name, _ in phase.payload}
+            held = names  # contacts that hold through the next phase's impacts
         last = phases[-1]
         knot = Knot(t, len(phases) - 1, last.duration, "terminal")
         terminal = self._running_model(last, knot, 0.0, with_costs)
@@ -232,10 +242,10 @@ class ProblemBuilder:
         rk = {"rk2": crocoddyl.RKType.two, "rk3": crocoddyl.RKType.three, "rk4": crocoddyl.RKType.four}[integrator]
         return crocoddyl.IntegratedActionModelRK(dam, rk, dt)
 
-    def _impulse_model(self, starting: list[Contact], phase: Phase, knot: Knot, with_costs: bool):
+    def _impulse_model(self, rigid: list[Contact], phase: Phase, knot: Knot, with_costs: bool):
         state, _ = self._carrying(phase.payload, phase.squeeze)
         impulses = crocoddyl.ImpulseModelMultiple(state)
-        for c in starting:
+        for c in rigid:
             fid = self.frame_id(c.name)
             if c.flat:
                 impulse = crocoddyl.ImpulseModel6D(state, fid, pin.LOCAL)

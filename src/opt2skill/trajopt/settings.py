@@ -22,6 +22,7 @@ class ContactSettings:
     cop_scale: float = 0.8  # the optimizer's CoP box is this fraction of the sole
     min_normal_force: float = 10.0  # N, per stance foot, inside the optimizer's cone
     impacts: bool = True  # an impulse node where a contact starts
+    impacts_hold: bool = True  # ... with the fixed contacts that continue through it (docs/trajopt.md)
     frame_cone_scale: float = 0.97  # the 200 Hz rollout keeps wrenches inside cones shrunk by this
 
     def check(self) -> None:
