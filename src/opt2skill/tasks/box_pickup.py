@@ -41,7 +41,7 @@ from opt2skill.trajopt.params import Param
 from opt2skill.trajopt.phase_task import PhaseTask, Plan
 from opt2skill.trajopt.phases import Knot, Phase, Problem
 from opt2skill.trajopt.posture import Posture
-from opt2skill.trajopt.receding import HoldGuess, solve_receding
+from opt2skill.trajopt.receding import solve_standing
 from opt2skill.trajopt.settings import ContactSettings, SolverSettings
 from opt2skill.trajopt.skills.locomotion import foot_contact, stand_footholds
 from opt2skill.trajopt.skills.manipulation import (HandPath, contact_radius, end_effector_positions, grasp_contacts,
@@ -320,8 +320,7 @@ class BoxPickupTask(PhaseTask):
         rc = self.config.receding
         if not rc.enabled:
             return super().optimize(problem, plan)
-        return solve_receding(problem, self.config.solver, window=rc.window, commit=rc.commit, max_iter=rc.max_iter,
-                              first_max_iter=rc.first_max_iter, extend=HoldGuess(problem))
+        return solve_standing(problem, self.config.solver, rc)
 
     def complete_frames(self, plan: Plan, problem: Problem, frames: Frames, knots: dict) -> Frames:
         params = plan.context

@@ -187,3 +187,12 @@ def _largest_gap(shooting, xs: np.ndarray) -> float:
     for k, (model, data) in enumerate(zip(shooting.runningModels, shooting.runningDatas)):
         gap = max(gap, float(np.abs(model.state.diff(data.xnext, xs[k + 1])).max()))
     return gap
+
+
+def solve_standing(problem: Problem, settings: SolverSettings, receding) -> Solution:
+    """Receding windows for a task that stands (manipulation at a shelf or a desk): the nodes past a
+    window's warm start begin as the last state held (`HoldGuess`). `receding`: the task's
+    `RecedingSettings` (window, commit, max_iter, first_max_iter)."""
+    return solve_receding(problem, settings, window=receding.window, commit=receding.commit,
+                          max_iter=receding.max_iter, first_max_iter=receding.first_max_iter,
+                          extend=HoldGuess(problem))

@@ -16,7 +16,7 @@ from opt2skill.scene.props import Desk
 from opt2skill.trajopt.config import require
 from opt2skill.trajopt.phase_task import Plan, PhaseTask
 from opt2skill.trajopt.phases import Contact, Knot, Problem
-from opt2skill.trajopt.receding import HoldGuess, solve_receding
+from opt2skill.trajopt.receding import solve_standing
 from opt2skill.trajopt.settings import SolverSettings
 from opt2skill.trajopt.solver import Solution
 from opt2skill.trajopt.skills.stride_guess import RecedingSettings
@@ -86,8 +86,7 @@ class DeskTask(PhaseTask):
         rc = self.config.receding
         if not rc.enabled:
             return super().optimize(problem, plan)
-        return solve_receding(problem, self.config.solver, window=rc.window, commit=rc.commit, max_iter=rc.max_iter,
-                              first_max_iter=rc.first_max_iter, extend=HoldGuess(problem))
+        return solve_standing(problem, self.config.solver, rc)
 
 
 @dataclass(frozen=True)
