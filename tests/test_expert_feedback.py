@@ -112,7 +112,7 @@ def test_trajectories_without_gains_get_a_clear_error(robot, walk):
 
 def test_standing_segments_are_the_walks_start_and_end(robot, walk):
     feet = [f.name for f in robot.config.feet]
-    segments = standing_segments(walk, StandingLQR().min_duration, feet)
+    segments = standing_segments(walk, StandingLQR(), feet)
     assert len(segments) == 2
     (a0, b0), (a1, b1) = segments
     assert a0 == 0 and b1 == walk.num_frames
@@ -120,7 +120,7 @@ def test_standing_segments_are_the_walks_start_and_end(robot, walk):
     # Walking double supports are far shorter than a standing segment.
     assert not walk.contact_active[b0:a1].all(axis=1)[: int(0.5 / FRAME_DT)].all()
     # A record with a contact the standing LQR does not know (a hand) keeps the solver's gains.
-    assert standing_segments(walk, StandingLQR().min_duration, feet[:1]) == []
+    assert standing_segments(walk, StandingLQR(), feet[:1]) == []
 
 
 def hold_after_end(robot, walk, standing, push: float) -> np.ndarray:

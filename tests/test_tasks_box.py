@@ -7,6 +7,7 @@ import pytest
 
 from opt2skill.data.validate import validate
 from opt2skill.errors import ConfigError
+from opt2skill.expert.standing import StandingLQR, standing_gain, standing_segments
 from opt2skill.model import load_robot
 from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
 from opt2skill.tasks import get_task
@@ -136,3 +137,20 @@ def test_the_box_pickup_is_accepted_and_the_expert_places_the_box_upright_on_its
     assert result["accepted"], result["reasons"]
     assert result["figures"]["replay_fallen_windows"] == 0.0 and result["figures"]["replay_feedback_fallen"] == 0.0
     assert errors["placement_error"]["value"] < 0.03 and errors["placement_tilt"]["value"] < 10.0
+
+
+def test_the_box_records_standing_gains_cover_only_the_still_end(robot, solved):
+    """The standing LQR (`expert.standing`) takes over where the robot stands still on its feet alone,
+    after the release and the return, and nowhere the hands touch the box or the arms move."""
+    _, traj = solved
+    weights = StandingLQR()
+    segments = standing_segments(traj, weights, [f.name for f in robot.config.feet])
+    assert segments and segments[-1][1] == traj.num_frames
+    hands = [list(traj.contact_names).index(h) for h in HANDS]
+    for start, stop in segments:
+        assert not traj.contact_active[start:stop, hands].any()
+        assert np.abs(traj.qvel[start:stop, 6:]).max() <= weights.rest_speed
+    # One gain per segment, the LQR of the feet alone (the hands' contacts are off there).
+    start, stop = segments[-1]
+    gain = standing_gain(robot, traj, (start + stop) // 2, weights)
+    assert gain.shape == (robot.nu, 2 * robot.nv) and np.isfinite(gain).all()

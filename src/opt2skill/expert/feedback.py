@@ -55,7 +55,7 @@ class FeedbackExpert:
             frame_knot = gain_offset + np.clip(covering, 0, len(knot_time) - 1)
             gains.append(np.asarray(traj.knots["gains"])[running])
             gain_offset += len(knot_time)
-            segments = standing_segments(traj, standing.min_duration, feet) if standing else ()
+            segments = standing_segments(traj, standing, feet) if standing else ()
             for start, stop in segments:
                 gains.append(standing_gain(robot, traj, (start + stop) // 2, standing)[None])
                 frame_knot[start:stop] = gain_offset

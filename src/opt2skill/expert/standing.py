@@ -31,6 +31,10 @@ class StandingLQR:
     """Weights of the standing LQR (per unit time; state costs on the tangent-space deviation)."""
 
     min_duration: float = 0.4  # s of all feet in contact that make a standing segment
+    # In records with other contacts (hands on a box) the feet-only stretches also carry the arms'
+    # reach and return, which one gain does not hold (docs/expert.md): there only the frames where
+    # every joint is slower than this (rad/s) count.
+    rest_speed: float = 0.5
     base_pose: float = 1e3  # base translation and rotation
     joint_position: float = 1e2
     base_velocity: float = 10.0
@@ -39,25 +43,32 @@ class StandingLQR:
     baumgarte: tuple[float, float] = (100.0, 20.0)  # contact stabilization, as the optimizer's
 
 
-def standing_segments(traj: Trajectory, min_duration: float, feet: Collection[str]) -> list[tuple[int, int]]:
-    """Frame ranges [start, stop) where every contact of the record is active for >= min_duration.
-    None for a record with contacts besides `feet` (hands on a box): the standing LQR knows only
-    flat feet, so the solver's own gains cover the whole motion."""
-    if traj.contact_active.shape[1] == 0 or not set(traj.contact_names) <= set(feet):
+def standing_segments(traj: Trajectory, weights: StandingLQR, feet: Collection[str]) -> list[tuple[int, int]]:
+    """Frame ranges [start, stop), at least `weights.min_duration` long, where every foot is in
+    contact and nothing else is; in a record with other contacts, also with the joints at rest
+    (`weights.rest_speed`)."""
+    names = list(traj.contact_names)
+    is_foot = np.array([name in feet for name in names], dtype=bool)
+    if not is_foot.any():
         return []
-    on = np.r_[0, traj.contact_active.all(axis=1).astype(np.int8), 0]
+    active = np.asarray(traj.contact_active, dtype=bool)
+    standing = active[:, is_foot].all(axis=1) & ~active[:, ~is_foot].any(axis=1)
+    if not is_foot.all():
+        standing &= np.abs(traj.qvel[:, 6:]).max(axis=1) <= weights.rest_speed
+    on = np.r_[0, standing.astype(np.int8), 0]
     edges = np.diff(on)
     starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    shortest = int(round(min_duration / FRAME_DT))
+    shortest = int(round(weights.min_duration / FRAME_DT))
     return [(int(a), int(b)) for a, b in zip(starts, stops) if b - a >= shortest]
 
 
 def standing_gain(robot: Robot, traj: Trajectory, frame: int, weights: StandingLQR) -> np.ndarray:
     """The LQR gain (nu, 2 nv) at one frame of a standing segment (float32, like the stored gains)."""
     feet = {foot.name: foot for foot in robot.config.feet}
-    unknown = [name for name in traj.contact_names if name not in feet]
+    in_contact = [name for name, on in zip(traj.contact_names, traj.contact_active[frame]) if on]
+    unknown = [name for name in in_contact if name not in feet]
     if unknown:
-        raise DataError(f"standing gains need flat foot contacts; the record also has {unknown}")
+        raise DataError(f"standing gains need flat foot contacts only; frame {frame} also has {unknown}")
     pm = robot.pin_model
     q = qpos_mj_to_pin(traj.qpos[frame])
     x = np.concatenate([q, qvel_mj_to_pin(traj.qpos[frame], traj.qvel[frame])])
@@ -66,7 +77,7 @@ def standing_gain(robot: Robot, traj: Trajectory, frame: int, weights: StandingL
     data = pm.createData()
     pin.framesForwardKinematics(pm, data, q)
     contacts = crocoddyl.ContactModelMultiple(state, actuation.nu)
-    for name in traj.contact_names:
+    for name in in_contact:
         fid = robot.pin_frame_id(feet[name].sole_site)
         contacts.addContact(name, crocoddyl.ContactModel6D(state, fid, data.oMf[fid], pin.LOCAL, actuation.nu,
                                                            np.array(weights.baumgarte)))
