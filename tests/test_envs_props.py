@@ -24,7 +24,7 @@ from opt2skill.envs import CAUSES, ReferenceBank, TrackingEnv
 from opt2skill.errors import ConfigError
 from opt2skill.eval.evaluate import EvalRequest, evaluate
 from opt2skill.envs.config import TerminationConfig
-from opt2skill.eval.task_metrics import DROPPED, prop_metrics
+from opt2skill.eval.task_metrics import DROPPED, PLACED, prop_metrics
 from opt2skill.rl.session import TrainRequest, train
 from opt2skill.scene import Scene, build_model
 from opt2skill.tasks import get_task
@@ -160,4 +160,20 @@ def test_a_box_dataset_trains_evaluates_with_the_box_placement_and_exports(recor
     box = played.tracked.prop_poses["box"]
     np.testing.assert_allclose(box[0], reference.prop_poses["box"][0])
     assert box.shape == (played.tracked.num_frames, 7)
-    assert set(prop_metrics(reference, played.tracked)) == {"box_placement_error", "box_dropped"}
+    assert set(prop_metrics(reference, played.tracked)) == {"box_placement_error", "box_dropped", "box_placed"}
+
+
+def test_a_box_counts_as_placed_only_at_the_end_of_the_motion_and_near_its_target(records):
+    reference = records[0]
+    poses = reference.prop_poses["box"]
+    assert prop_metrics(reference, reference)["box_placed"] == (1.0, "")
+    # Ended early: not placed, however close the box is to where the reference puts it.
+    half = reference.num_frames // 2
+    early = dataclasses.replace(reference, qpos=reference.qpos[:half], qvel=reference.qvel[:half], time=reference.time[:half],
+                    prop_poses={"box": np.tile(poses[-1], (half, 1))})
+    assert prop_metrics(reference, early)["box_placed"] == (0.0, "")
+    # To the end, but the box 4 cm off its target.
+    off = poses.copy()
+    off[-1, 0] += PLACED + 0.01
+    missed = prop_metrics(reference, dataclasses.replace(reference, prop_poses={"box": off}))
+    assert missed["box_placed"] == (0.0, "") and missed["box_placement_error"][0] == pytest.approx(PLACED + 0.01)
