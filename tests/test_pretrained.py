@@ -115,3 +115,20 @@ def test_the_shipped_walking_policy_is_intact_and_needs_references(tmp_path):
                             cwd=tmp_path, timeout=120)
     assert result.returncode == 0, result.stderr
     assert list(tmp_path.iterdir()) == [out]  # nothing else written, nothing written into the package
+
+
+BOX_REFERENCE = Path(__file__).parent / "data" / "box_pickup" / "seed1_index5"  # its README says how it was made
+
+
+@pytest.mark.skipif("box_pickup" not in pretrained.names(), reason="no box pickup policy shipped")
+def test_the_shipped_box_policy_carries_a_held_out_box_onto_its_target_board():
+    """The shipped box pickup policy on a stored reference of another seed than its training set:
+    it tracks the whole pickup with the real shelf and the free box and leaves the box within 3 cm
+    of where the reference puts it."""
+    directory = pretrained.pretrained_run("box_pickup")
+    report, rollouts = evaluate(EvalRequest(run=directory, dataset=BOX_REFERENCE, n=1, threads=1), progress=False)
+    (result,) = report.results
+    assert result.seen is False and result.index == 5
+    assert result.cause == "time_out", result.cause
+    assert result.task_metrics["box_placed"] == (1.0, ""), result.task_metrics
+    assert result.task_metrics["box_dropped"] == (0.0, "")
