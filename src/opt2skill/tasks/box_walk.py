@@ -32,6 +32,7 @@ from opt2skill.trajopt.params import Param
 from opt2skill.trajopt.phase_task import Plan
 from opt2skill.trajopt.phases import Problem
 from opt2skill.trajopt.posture import Posture
+from opt2skill.trajopt.settings import SolverSettings
 from opt2skill.trajopt.skills.box_handling import (HANDS, BoxHandlingConfig, BoxHandlingTask, expert_box_path,
                                                    hand_friction_violation)
 from opt2skill.trajopt.skills.gait import GaitPlan, GaitSpec, plan_gait
@@ -79,6 +80,11 @@ class BoxWalkConfig(BoxHandlingConfig):
     # stand pose's, and with the hands held on the box the torso leaned 4 cm forward at the end.
     walk_posture: Posture = field(default_factory=lambda: Posture(legs=0.3, leg_velocity=0.3, arms=0.3, base_velocity=1.0))
     thresholds: BoxWalkThresholds = field(default_factory=BoxWalkThresholds)
+    # The expert's gains from one regularized Riccati pass over the whole motion: the receding
+    # windows' own gains jumped 30 times (norm 800 to 29,500) where the last, shorter window
+    # began, and the expert's feet slid 17 to 23 cm or it fell in the final stand (docs/trajopt.md).
+    solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.02, max_iter=200, reg_init=1e-4,
+                                                                          gains="riccati"))
 
     def check_own(self) -> None:
         super().check_own()
