@@ -37,6 +37,8 @@ def test_bad_walk_parameters_are_refused(robot):
         task.solve({**PARAMS, "box_mass": 0.0}, seed=0)
     with pytest.raises(ConfigError, match="steps"):
         task.solve({**PARAMS, "steps": 12}, seed=0)
+    with pytest.raises(ConfigError, match="sampling ranges reach a walk too fast: distance = 0.5 m in 3 steps"):
+        get_task("box_walk", robot, {"ranges": {"distance": [0.1, 0.5]}})  # refused before any solve
     with pytest.raises(ConfigError, match="max_speed must be in"):
         get_task("box_walk", robot, {"max_speed": 2.0})
 

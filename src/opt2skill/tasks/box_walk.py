@@ -28,7 +28,7 @@ from opt2skill.errors import ConfigError
 from opt2skill.tasks import TaskInfo
 from opt2skill.tasks.walk import WalkThresholds, walk_errors
 from opt2skill.trajopt.config import require
-from opt2skill.trajopt.params import Param
+from opt2skill.trajopt.params import Param, ParamSpace
 from opt2skill.trajopt.phase_task import Plan
 from opt2skill.trajopt.phases import Problem
 from opt2skill.trajopt.posture import Posture
@@ -101,6 +101,19 @@ class BoxWalkTask(BoxHandlingTask):
     name = "box_walk"
     config_class = BoxWalkConfig
     params = PARAMS
+
+    def param_space(self) -> ParamSpace:
+        """The parameters; sampling ranges whose longest distance in the fewest, shortest steps
+        needs more than `max_speed` are refused here, before any solve."""
+        space = super().param_space()
+        r = space.ranges
+        corner = {"distance": r["distance"][1], "steps": r["steps"][0], "step_duration": r["step_duration"][0],
+                  "clearance": r["clearance"][0]}
+        try:
+            self.gait(corner, after=0.0)  # the speed a walk needs does not depend on when it starts
+        except ConfigError as exc:
+            raise ConfigError(f"the sampling ranges reach a walk too fast: {exc}") from None
+        return space
 
     def shelf_boards(self, params: dict[str, float]) -> tuple[float, ...]:
         return (params["board"],)
