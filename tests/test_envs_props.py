@@ -28,7 +28,7 @@ from opt2skill.eval.task_metrics import DROPPED, PLACED, prop_metrics
 from opt2skill.rl.session import TrainRequest, train
 from opt2skill.scene import Scene, build_model
 from opt2skill.tasks import get_task
-from opt2skill.tasks.box_pickup import HANDS
+from opt2skill.trajopt.skills.box_handling import HANDS
 
 PARAMS = dict(low=0.8647255408500933, high=1.2213295140191314, upward=0.7287589425619064, reach=0.511836484304785,
               box_width=0.29665462464298725, box_mass=0.7386439330092451)

@@ -2,16 +2,15 @@
 and whose box the optimizer's feedback expert puts on its target board in MuJoCo."""
 
 import numpy as np
-import pinocchio as pin
 import pytest
+from box_support import carried_frames, momentum_rate_residual
 
 from opt2skill.data.validate import validate
 from opt2skill.errors import ConfigError
 from opt2skill.expert.standing import StandingLQR, standing_gain, standing_segments
 from opt2skill.model import load_robot
-from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
 from opt2skill.tasks import get_task
-from opt2skill.tasks.box_pickup import HANDS
+from opt2skill.trajopt.skills.box_handling import HANDS
 
 # The default ranges' index 6 of seed 0 (what `generate box_pickup` solves), exactly: these solves
 # are sensitive to their parameters in the fourth digit (docs/trajopt.md).
@@ -63,44 +62,16 @@ def both_hands(traj) -> np.ndarray:
     return traj.contact_active[:-1, hands].all(axis=1)
 
 
-def _momentum_rate_residual(robot, traj, box_mass: float):
-    """Per frame: d/dt of the robot's linear momentum minus (all contact forces + weight), and for the
-    box the sum of the hands' forces on it minus its own momentum rate minus its weight."""
-    pm = robot.pin_model
-    pd = pm.createData()
-    q = qpos_mj_to_pin(traj.qpos)
-    v = qvel_mj_to_pin(traj.qpos, traj.qvel)
-    mass = pin.computeTotalMass(pm)
-    g = np.array([0.0, 0.0, -9.81])
-    hands = [list(traj.contact_names).index(h) for h in HANDS]
-    hand_frames = [robot.pin_frame_id(robot.config.end_effectors[h]) for h in HANDS]
-    robot_res, box_res = [], []
-    for k in range(len(q) - 1):
-        a = (v[k + 1] - v[k]) / 0.005
-        pin.centerOfMass(pm, pd, q[k], v[k], a)
-        forces = traj.contact_wrench[k, :, :3].sum(axis=0)
-        robot_res.append(mass * pd.acom[0] - forces - mass * g)
-        if traj.contact_active[k, hands].all():
-            # the box moves rigidly with the hands: its acceleration is their contact points' mean
-            pin.forwardKinematics(pm, pd, q[k], v[k], a)
-            pin.updateFramePlacements(pm, pd)
-            a_box = np.mean([pin.getFrameClassicalAcceleration(pm, pd, fid, pin.LOCAL_WORLD_ALIGNED).linear
-                             for fid in hand_frames], axis=0)
-            on_box = -traj.contact_wrench[k, hands, :3].sum(axis=0)
-            box_res.append(on_box + box_mass * g - box_mass * a_box)
-    return np.array(robot_res), np.array(box_res)
-
-
 @pytest.mark.slow
 def test_robot_and_box_balance_and_the_hands_hold_by_friction(robot, solved):
     task, traj = solved
     assert traj.scene.prop("box").mass == pytest.approx(PARAMS["box_mass"])
     active = traj.contact_active[:, [list(traj.contact_names).index(h) for h in HANDS]]
     assert active.any(axis=0).all()
-    robot_res, box_res = _momentum_rate_residual(robot, traj, PARAMS["box_mass"])
+    robot_res, box_res = momentum_rate_residual(robot, traj, PARAMS["box_mass"])
     impacts = np.any(traj.contact_active[1:] & ~traj.contact_active[:-1], axis=1)
     assert np.abs(robot_res[~impacts]).max() < 1e-6 * 50  # N: feet and hands balance the robot
-    carried = task_carried(task, traj)[both_hands(traj)]
+    carried = carried_frames(task, traj)[both_hands(traj)]
     # while carried, the hands' forces on the box are its weight and its momentum rate
     assert carried.sum() > 200 and np.abs(box_res[carried]).max() < 1e-6
     # each hand presses with the planned squeeze along the line between the hands (on top of the
@@ -109,20 +80,10 @@ def test_robot_and_box_balance_and_the_hands_hold_by_friction(robot, solved):
     axis = traj.ee_pos[:-1, ee.index("left_hand")] - traj.ee_pos[:-1, ee.index("right_hand")]
     axis /= np.linalg.norm(axis, axis=1, keepdims=True)
     total = traj.contact_wrench[:-1, names.index("left_hand"), :3] - traj.contact_wrench[:-1, names.index("right_hand"), :3]
-    pressed = 0.5 * np.einsum("ij,ij->i", total, axis)[task_carried(task, traj)]
+    pressed = 0.5 * np.einsum("ij,ij->i", total, axis)[carried_frames(task, traj)]
     assert pressed == pytest.approx(task.squeeze_force(PARAMS["box_mass"]), abs=2.0)
     errors = task.task_errors(traj)
     assert errors["hand_friction"]["value"] <= task.config.thresholds.hand_friction  # N, as for the feet
-
-
-def task_carried(task, traj):
-    """Frames whose step lies in a phase that carries the box (from the task's own plan)."""
-    t, out = 0.0, np.zeros(traj.num_frames - 1, dtype=bool)
-    for phase in task.plan(traj.params).phases:
-        if phase.payload:
-            out[int(round(t / 0.005)) : int(round((t + phase.duration) / 0.005))] = True
-        t += phase.duration
-    return out
 
 
 @pytest.mark.slow

@@ -191,8 +191,9 @@ class Replayer:
             "gains": np.asarray(k["gains"], dtype=float),
         }
 
-    def feedback_states(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The feedback replay's robot qpos and sensors after each physics step, until the fall."""
+    def feedback_states(self, props: bool = False) -> tuple[np.ndarray, ...] | None:
+        """The feedback replay's robot qpos and sensors after each physics step, until the fall;
+        with `props`, also the rest of MuJoCo's qpos (the free props', e.g. a carried box)."""
         ref = self.feedback_references()
         if ref is None:
             return None
@@ -205,6 +206,7 @@ class Replayer:
         mujoco.mj_resetData(m, d)
         d.qpos[: self.nq], d.qvel[: self.nv] = tr.qpos[0], tr.qvel[0]
         qpos = np.empty((nstep, self.nq))
+        prop_qpos = np.empty((nstep, m.nq - self.nq)) if props else None
         sensors = np.empty((nstep, m.nsensordata))
         kp, kd = cfg.kp, cfg.kd
         # The loop below is the law of the docstring, written for speed (it is most of a walk's
@@ -246,10 +248,14 @@ class Replayer:
                 ctrl[:] = qpos_now[7:] + (u + kd * joints_vel) / kp
             step(m, d)
             qpos[i] = qpos_now
+            if props:
+                prop_qpos[i] = d.qpos[nq:]
             sensors[i] = sensordata
             if i % 50 == 0 and self._fallen(qpos_ref[min(i + 1, nstep - 1)], qpos_now):
                 nstep = i + 1
                 break
+        if props:
+            return qpos[:nstep], sensors[:nstep], prop_qpos[:nstep]
         return qpos[:nstep], sensors[:nstep]
 
     def _fallen(self, qpos_ref: np.ndarray, qpos: np.ndarray) -> bool:

@@ -3,7 +3,7 @@
 A task subclass supplies its config (a `TaskConfig`), its parameters and `plan(params)` (phases with
 the task's own costs, start state, scene, optional initial guess); it may replace `optimize` with its
 own solve strategy. The standard costs every node gets (state and torque regularization towards the
-plan's posture, heavier on the terminal node) are added here, not by each task; the builder adds
+plan's posture, with the config's weights or the phase's own, heavier on the terminal node) are added here, not by each task; the builder adds
 the physical limits (cones, joint ranges, torque bounds).
 """
 
@@ -125,17 +125,18 @@ class PhaseTask(Task):
 
     def _with_standard_costs(self, plan: Plan) -> list[Phase]:
         """The plan's phases, each node's task costs followed by the posture and torque terms."""
-        posture = self.config.posture
-        weights = posture.weights(self.robot)
         reference = plan.x0 if plan.posture is None else plan.posture
 
-        def standard(costs):
+        def standard(costs, posture):
+            weights = posture.weights(self.robot)
+
             def all_costs(knot, terms) -> list:
                 return list(costs(knot, terms)) + posture.terms(terms, reference, weights, knot.kind)
 
             return all_costs
 
-        return [dataclasses.replace(phase, costs=standard(phase.costs)) for phase in plan.phases]
+        return [dataclasses.replace(phase, costs=standard(phase.costs, phase.posture or self.config.posture))
+                for phase in plan.phases]
 
     def _cones(self, problem: Problem) -> frames_mod.ContactCones:
         """The contact cones a rollout keeps the 200 Hz wrenches in: the robot's friction and soles,

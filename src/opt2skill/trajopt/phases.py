@@ -31,6 +31,7 @@ from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.trajopt.costs import Terms
 from opt2skill.trajopt.integrator import MatchedEulerModel
+from opt2skill.trajopt.posture import Posture
 from opt2skill.trajopt.squeeze import SqueezeActuation
 from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights
 
@@ -83,6 +84,9 @@ class Phase:
     # the line between them, so friction can hold the object): the arms' torques hold it
     # (`trajopt.squeeze`), so the solver's torque bounds see it.
     squeeze: float = 0.0
+    # The phase's own posture regularization (`PhaseTask` adds it), instead of the task's: the
+    # steps after a pickup need the walk's softer legs, the pickup its stiff ones.
+    posture: Posture | None = None
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ import numpy as np
 import pinocchio as pin
 
 from opt2skill.data.record import Trajectory
-from opt2skill.errors import SolverError
+from opt2skill.errors import ConfigError, SolverError
 from opt2skill.model.robot import Robot
 from opt2skill.trajopt.config import require
 from opt2skill.trajopt.phase_task import PhaseTask, Plan
@@ -97,11 +97,14 @@ def locomotion_phases(
     base_z: float,
     clearance: float,
     swing: SwingReference = swing_reference,
+    after: float = 0.0,
 ) -> list[Phase]:
     """Phases of the whole gait plan, from standing on `feet` to standing on the last footholds.
 
     `base_z`: the base (IMU site) height over level ground at the start; it follows the gait's
-    support height (stairs). Posture and torque terms are the task builder's, not added here."""
+    support height (stairs). `after` (s): the phases start then, the task's own phases standing on
+    `feet` before (pickup then walk); the first standing phase lasts `gait.stand_start - after`.
+    Posture and torque terms are the task builder's, not added here."""
     w = weights
     base_site = robot.config.imu_site  # the base's pose is its IMU site's, as in the paper's rewards
     ee = robot.config.end_effectors
@@ -142,7 +145,9 @@ def locomotion_phases(
 
     names = list(feet)
     stance = dict(feet)
-    phases = [Phase(gait.stand_start, tuple(foot_contact(stance[n]) for n in names), tracking, "stand")]
+    if not 0.0 <= after < gait.stand_start:
+        raise ConfigError(f"the walk's phases start at {after:g} s, not before its first step ({gait.stand_start:g} s)")
+    phases = [Phase(gait.stand_start - after, tuple(foot_contact(stance[n]) for n in names), tracking, "stand")]
     for i, step in enumerate(gait.steps):
         both = tuple(foot_contact(stance[n]) for n in names)
         if step.liftoff > step.start:
@@ -203,12 +208,14 @@ class LocomotionTask(PhaseTask):
         rc = self.config.receding
         if not rc.enabled:
             return super().optimize(problem, plan)
-        return solve_receding(
-            problem,
-            self.config.solver,
-            window=self._window or rc.window,
-            commit=rc.commit,
-            max_iter=rc.max_iter,
-            first_max_iter=rc.first_max_iter,
-            extend=StrideGuess(problem, plan.context),
-        )
+        return solve_walk(problem, self.config.solver, rc, plan.context, self._window)
+
+
+def solve_walk(problem: Problem, settings: SolverSettings, receding: RecedingSettings, gait: GaitPlan,
+               window: float | None = None) -> Solution:
+    """Receding windows for a problem that walks along `gait`: the nodes past a window's warm start
+    begin as the node one stride earlier (`StrideGuess`). `receding`: the task's `RecedingSettings`;
+    `window` replaces its window (the retry's)."""
+    rc = receding
+    return solve_receding(problem, settings, window=window or rc.window, commit=rc.commit, max_iter=rc.max_iter,
+                          first_max_iter=rc.first_max_iter, extend=StrideGuess(problem, gait))

@@ -117,16 +117,21 @@ def held_object_forces(robot: Robot, problem: Problem, frames: Frames, knots: di
     """Fill the hands' forces of `frames` and the solver's `knots` (in place) over the phases that
     carry a payload: each hand's share of the object's dynamics, m_i (g - a_i), plus the phase's
     squeeze pushing it away from the other hand along the line between them. The squeeze's torques
-    are already the solver's (`Phase.squeeze`, `trajopt.squeeze`)."""
+    are already the solver's (`Phase.squeeze`, `trajopt.squeeze`). At an impulse node while
+    carrying (a foot touching down during a walk) the knot's hand impulses are the object's share
+    of the impact, -m_i (dv_i), the change of the hand's velocity (N s)."""
     hold = _Hold(robot, problem, hands)
     nq = robot.pin_model.nq
     x = np.asarray(knots["x"])
     v_next = np.vstack([frames.v[1:], frames.v[-1:]])
     for k, node in enumerate(problem.nodes[:-1]):
         phase = problem.phases[node.phase_index]
-        if node.kind != "running" or not phase.payload:
+        if not phase.payload:
             continue
         masses = np.array([dict(phase.payload)[h] for h in hands])
+        if node.kind == "impulse":  # a foot's touchdown while carrying: the object's impulse on the hands
+            hold.impulse(x[k, :nq], x[k + 1, nq:] - x[k, nq:], masses, knots["contact_force"][k])
+            continue
         rows = np.arange(int(round(node.time / FRAME_DT)), int(round((node.time + node.dt) / FRAME_DT)))
         a = (v_next[rows] - frames.v[rows]) / FRAME_DT
         hold.apply(frames.q[rows], frames.v[rows], a, masses, phase.squeeze, rows, frames.wrench, frames.active)
@@ -143,6 +148,16 @@ class _Hold:
         self.pd = self.pm.createData()
         self.fids = [robot.pin_frame_id(robot.config.end_effectors[h]) for h in hands]
         self.cols = [list(problem.contact_names).index(h) for h in hands]
+
+    def impulse(self, q, dv, masses, out) -> None:
+        """The hands' impulses -m_i J_i(q) dv (N s) into out[hand columns] (the node's (nc, 6))."""
+        pm, pd = self.pm, self.pd
+        pin.computeJointJacobians(pm, pd, q)
+        pin.updateFramePlacements(pm, pd)
+        for i, (fid, c) in enumerate(zip(self.fids, self.cols)):
+            J = pin.getFrameJacobian(pm, pd, fid, pin.LOCAL_WORLD_ALIGNED)[:3]
+            out[c, :3] = -masses[i] * (J @ dv)
+            out[c, 3:] = 0.0
 
     def apply(self, q, v, a, masses, squeeze, rows, wrench, active) -> None:
         """Per state r: the first hand's force m_1 (g - a_1) + s axis, the second's m_2 (g - a_2) - s
