@@ -11,7 +11,7 @@ the reading's error into torque). `--channels` puts the noise on chosen readings
 
 Printed as a Markdown table and written as JSON: success (tracked to the end), frames tracked.
 
-    .venv/bin/python benchmarks/expert_noise.py --dataset data/walk_test [--n 8] [--stiffness 1,0.4] \\
+    .venv/bin/python benchmarks/expert_noise.py --dataset data/walk_test [--n 8] [--servo reference,state] [--stiffness 1,0.4] \\
         [--noise 0,0.25,0.5,1] [--worlds nominal,table2] [--channels all|joint_pos,base_lin_vel,...]
 """
 
@@ -68,7 +68,7 @@ class Filtered:
 
 
 def measure(robot, references, task: str, stiffness: float, table2: bool, noise: float, channels: tuple[str, ...],
-            seed: int, threads: int, filter_gain: float = 1.0) -> dict:
+            seed: int, threads: int, filter_gain: float = 1.0, servo: str = "reference") -> dict:
     config = eval_config(tracking_config(task), randomize=True, noise=True)
     full = config.observations.noise
     kept = NoiseConfig(**{c: getattr(full, c) if c in channels else 0.0 for c in CHANNELS})
@@ -82,10 +82,10 @@ def measure(robot, references, task: str, stiffness: float, table2: bool, noise:
     with TrackingEnv(robot, bank, config, n, seed=seed, threads=threads) as env:
         env.set_progress(1.0)
         env.noise_factor = noise
-        expert = EnvExpert(env, references, ExpertConfig(reads="observations"))
+        expert = EnvExpert(env, references, ExpertConfig(reads="observations", servo=servo))
         motions = track(env, expert if filter_gain >= 1 else Filtered(expert, filter_gain), np.arange(n))
     frames = sum(m.steps for m in motions) / sum(m.reference_frames - 1 for m in motions)
-    return {"stiffness": stiffness, "table2": table2, "noise": noise, "channels": list(channels), "filter": filter_gain,
+    return {"servo": servo, "stiffness": stiffness, "table2": table2, "noise": noise, "channels": list(channels), "filter": filter_gain,
             "success": float(np.mean([not m.fell for m in motions])), "frames_tracked": float(frames)}
 
 
@@ -99,6 +99,8 @@ def main() -> None:
     parser.add_argument("--channels", default="all", help=f"noisy readings: all, or some of {', '.join(CHANNELS)}; "
                         "'each' runs every channel alone")
     parser.add_argument("--filter", default="1", help="complementary-filter gains per step, comma-separated (1: none)")
+    parser.add_argument("--servo", default="reference", help="the expert's servo forms, comma-separated: "
+                        "reference and/or state (ExpertConfig.servo)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("bench/expert_noise.json"))
@@ -114,17 +116,17 @@ def main() -> None:
                     [CHANNELS if args.channels == "all" else tuple(args.channels.split(","))])
     rows = []
     print(f"{machine()}; {len(references)} walks of {args.dataset}")
-    print("| Kp factor | world | noisy readings | filter gain | noise factor | success | frames tracked | s |\n"
-          "| --- | --- | --- | --- | --- | --- | --- | --- |")
-    for s in [float(x) for x in args.stiffness.split(",")]:
+    print("| servo | Kp factor | world | noisy readings | filter gain | noise factor | success | frames tracked | s |\n"
+          "| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for servo, s in [(v, float(x)) for v in args.servo.split(",") for x in args.stiffness.split(",")]:
         for world in args.worlds.split(","):
             for channels, gain in [(c, float(g)) for c in channel_sets for g in args.filter.split(",")]:
                 for f in [float(x) for x in args.noise.split(",")]:
                     start = time.perf_counter()
-                    row = measure(robot, references, task, s, world == "table2", f, channels, args.seed, args.threads, gain)
+                    row = measure(robot, references, task, s, world == "table2", f, channels, args.seed, args.threads, gain, servo)
                     rows.append(row)
                     named = "all" if channels == CHANNELS else ", ".join(channels)
-                    print(f"| {s:g} | {'Table II' if world == 'table2' else 'nominal'} | {named} | {gain:g} | {f:g} | "
+                    print(f"| {servo} | {s:g} | {'Table II' if world == 'table2' else 'nominal'} | {named} | {gain:g} | {f:g} | "
                           f"{row['success']:.0%} | {row['frames_tracked']:.0%} | {time.perf_counter() - start:.0f} |",
                           flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)

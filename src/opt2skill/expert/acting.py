@@ -26,16 +26,26 @@ from opt2skill.expert.standing import StandingLQR
 from opt2skill.geometry import quat_mul, quat_to_mat
 
 
+SERVO_FORMS = ("reference", "state")
+
+
 @dataclass(frozen=True)
 class ExpertConfig:
     """How the law becomes PD targets, and how far from its reference it is trusted (0: no limit).
 
     `standing_gains`: standing segments get stabilizing gains of their own (`expert.standing`).
-    `lead`: the targets are computed at the joint positions predicted `lead` policy steps ahead
-    (q + lead h qd): the servo holds a target for the whole step while the joints move, and the
-    torque it applies drifts by kp qd over the step. `joint_losses`: the motors also supply the
-    simulated joints' damping and friction loss, which the optimizer's rigid-body model leaves out.
-    docs/distill.md has the measurements behind the defaults.
+    `servo`: how the law's torque u becomes a PD target held for the policy step.
+    "reference" (the default): the target q_ref + (u + kd qd_ref) / kp, at the reference
+    `reference_ahead` policy steps ahead (the middle of the step the target is held over), so the
+    servo applies u + kp (q_ref - q) + kd (qd_ref - qd): its own PD, which runs at the physics rate,
+    tracks the reference on top of the law, as in the validation's feedback replay
+    (`data.replay`). "state": the target at which the servo produces u alone at the measured state,
+    computed at the joint positions predicted `lead` policy steps ahead (q + lead h qd), since the
+    torque drifts by kp qd over the step; the law alone then holds the robot at 200 Hz, which
+    loses heavy boxes and some walks (docs/distill.md, "the servo's PD in the expert").
+    `joint_losses`: the motors also supply the simulated joints' damping and friction loss, which
+    the optimizer's rigid-body model leaves out. docs/distill.md has the measurements behind the
+    defaults.
     """
 
     # What the law reads. "state": the simulator's true state (the teacher of asymmetric DAgger).
@@ -44,7 +54,9 @@ class ExpertConfig:
     # measures what observation noise does to the law itself (benchmarks/expert_noise.py). Validity is
     # always judged on the true state. The two are the same without observation noise.
     reads: str = "state"
-    lead: float = 0.75  # policy steps
+    servo: str = "reference"  # "reference" | "state", see above
+    reference_ahead: float = 0.5  # policy steps ("reference" servo)
+    lead: float = 0.75  # policy steps ("state" servo)
     joint_losses: bool = True
     standing_gains: bool = True  # LQR gains of their own in standing segments (expert.standing)
     friction_smoothing: float = 0.05  # rad/s, friction loss as f tanh(qd / smoothing)
@@ -55,8 +67,12 @@ class ExpertConfig:
     def check(self) -> None:
         if self.reads not in ("observations", "state"):
             raise ConfigError(f"expert reads must be 'observations' or 'state', got '{self.reads}'")
+        if self.servo not in SERVO_FORMS:
+            raise ConfigError(f"expert servo must be one of {', '.join(SERVO_FORMS)}, got '{self.servo}'")
         if not 0 <= self.lead <= 5:
             raise ConfigError(f"expert lead must be in [0, 5] policy steps, got {self.lead}")
+        if not 0 <= self.reference_ahead <= 5:
+            raise ConfigError(f"expert reference_ahead must be in [0, 5] policy steps, got {self.reference_ahead}")
         if self.friction_smoothing <= 0:
             raise ConfigError(f"expert friction_smoothing must be > 0 rad/s, got {self.friction_smoothing}")
         for name in ("max_base_position", "max_base_rotation", "max_joint"):
@@ -133,7 +149,11 @@ class EnvExpert:
         if cfg.joint_losses:
             torque = torque + self._damping * qd + self._friction * np.tanh(qd / cfg.friction_smoothing)
         kp, kd, _ = env.sim.gains()
-        targets = pd_targets(torque, q + cfg.lead * env.sim.policy_dt * qd, qd, kp, kd)
+        if cfg.servo == "reference":
+            q_ref, qd_ref = self.expert.reference_joints(env.traj, time + cfg.reference_ahead * env.sim.policy_dt)
+            targets = pd_targets(torque, q_ref, qd_ref, kp, kd)
+        else:
+            targets = pd_targets(torque, q + cfg.lead * env.sim.policy_dt * qd, qd, kp, kd)
         return env.actions_for_targets(targets), cfg.valid(deviation, env.nu)
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:

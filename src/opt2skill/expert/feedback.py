@@ -70,6 +70,23 @@ class FeedbackExpert:
         self._knot = np.concatenate(knot_of_frame)
         self._gains = np.concatenate(gains)
 
+    def reference_joints(self, traj: np.ndarray, time: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The reference joint positions and velocities (N, nu) of worlds tracking `traj` (N,) at
+        `time` (N,) seconds, interpolated between frames (the last frame past the end)."""
+        rows, following, alpha = self._rows(np.asarray(traj, dtype=np.int64), time)
+        x = (1 - alpha) * self._x[rows] + alpha * self._x[following]
+        joints = slice(7, 7 + self.nu)
+        return x[:, joints], x[:, self.nq + 6:self.nq + 6 + self.nu]
+
+    def _rows(self, traj: np.ndarray, time: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The frame rows at or before `time`, the following rows, and the fraction (N, 1) between."""
+        position = np.asarray(time, dtype=float) / FRAME_DT
+        last = self.num_frames[traj] - 1
+        frame = np.clip(np.floor(position + 1e-9).astype(np.int64), 0, last)
+        following = np.minimum(frame + 1, last)
+        alpha = np.clip(position - frame, 0.0, 1.0)[:, None]
+        return self.frame_offset[traj] + frame, self.frame_offset[traj] + following, alpha
+
     def torque(self, traj: np.ndarray, time: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
         """Joint torques (N, nu) for worlds tracking trajectories `traj` (N,) at `time` (N,) seconds,
         measured states `qpos` (N, nq) and `qvel` (N, nv) in MuJoCo's layout."""
@@ -79,13 +96,7 @@ class FeedbackExpert:
                              qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The torques (N, nu) and the deviations x (-) x_ref(t) (N, 2 nv) they feed back on (tangent
         space: base translation in the reference base frame, base rotation vector, joints, velocities)."""
-        traj = np.asarray(traj, dtype=np.int64)
-        position = np.asarray(time, dtype=float) / FRAME_DT
-        last = self.num_frames[traj] - 1
-        frame = np.clip(np.floor(position + 1e-9).astype(np.int64), 0, last)
-        following = np.minimum(frame + 1, last)
-        alpha = np.clip(position - frame, 0.0, 1.0)[:, None]
-        row, row_next = self.frame_offset[traj] + frame, self.frame_offset[traj] + following
+        row, row_next, alpha = self._rows(np.asarray(traj, dtype=np.int64), time)
         x = np.concatenate([qpos_mj_to_pin(qpos), qvel_mj_to_pin(qpos, qvel)], -1)
         dx = (1 - alpha) * state_diff(self._x[row], x, self.nq) + alpha * state_diff(self._x[row_next], x, self.nq)
         return self._u[row] - np.einsum("nij,nj->ni", self._gains[self._knot[row]], dx), dx
