@@ -2,9 +2,10 @@
 
 At policy step t a world tracks its reference at frame t's instant. The expert reads the world's
 simulated state (not the actor's noisy observations), evaluates the feedback law of its reference
-(`FeedbackExpert`) and returns the action whose PD targets make the world's servos produce that torque
-at this state (with the world's own, randomized gains): `pd_targets`, then the environment's action
-map. Everything is batched over the worlds; there is no loop over worlds.
+(`FeedbackExpert`) and returns the action whose PD targets make the world's servos apply that torque
+(with the world's own, randomized gains), by default with their own PD tracking the reference on
+top (`ExpertConfig.servo`): `pd_targets`, then the environment's action map. Everything is
+batched over the worlds; there is no loop over worlds.
 
 The law is local: far from its reference it is not a controller any more. `ExpertConfig` says how far
 a state may be from the reference for the expert's action to count as a label, and how the torque
@@ -42,7 +43,7 @@ class ExpertConfig:
     (`data.replay`). "state": the target at which the servo produces u alone at the measured state,
     computed at the joint positions predicted `lead` policy steps ahead (q + lead h qd), since the
     torque drifts by kp qd over the step; the law alone then holds the robot at 200 Hz, which
-    loses heavy boxes and some walks (docs/distill.md, "the servo's PD in the expert").
+    loses heavy boxes and some walks (docs/expert.md, "The servo's PD around the reference").
     `joint_losses`: the motors also supply the simulated joints' damping and friction loss, which
     the optimizer's rigid-body model leaves out. docs/distill.md has the measurements behind the
     defaults.
