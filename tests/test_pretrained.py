@@ -132,3 +132,20 @@ def test_the_shipped_box_policy_carries_a_held_out_box_onto_its_target_board():
     assert result.cause == "time_out", result.cause
     assert result.task_metrics["box_placed"] == (1.0, ""), result.task_metrics
     assert result.task_metrics["box_dropped"] == (0.0, "")
+
+
+STAIRS_REFERENCE = Path(__file__).parent / "data" / "stairs" / "seed1_index2"  # its README says how it was made
+
+
+@pytest.mark.skipif("stairs" not in pretrained.names(), reason="no stairs policy shipped")
+def test_the_shipped_stairs_policy_climbs_a_held_out_flight():
+    """The shipped stairs policy on a stored ascent of another seed than its training set (three
+    9.5-cm risers): it tracks the whole flight on the reference's stairs and ends on the top level."""
+    directory = pretrained.pretrained_run("stairs")
+    report, _ = evaluate(EvalRequest(run=directory, dataset=STAIRS_REFERENCE, n=1, threads=1), progress=False)
+    (result,) = report.results
+    assert result.seen is False and result.index == 2
+    assert result.cause == "time_out", result.cause
+    assert result.task_metrics["stair_success"] == (1.0, ""), result.task_metrics
+    height_error, unit = result.task_metrics["final_height_error"]
+    assert unit == "cm" and height_error < 2.0, result.task_metrics  # measured 0.04 cm
