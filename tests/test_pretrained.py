@@ -117,7 +117,18 @@ def test_the_shipped_walking_policy_is_intact_and_needs_references(tmp_path):
     assert list(tmp_path.iterdir()) == [out]  # nothing else written, nothing written into the package
 
 
-BOX_REFERENCE = Path(__file__).parent / "data" / "box_pickup" / "seed1_index5"  # its README says how it was made
+DATA = Path(__file__).parent / "data"  # each reference's README there says how it was made
+
+
+def held_out_result(name: str, reference: Path, index: int):
+    """The shipped policy `name` on the one stored reference in `reference`, which it never trained
+    on, tracked to the end (a fall or a dropped prop fails here)."""
+    report, _ = evaluate(EvalRequest(run=pretrained.pretrained_run(name), dataset=reference, n=1, threads=1),
+                         progress=False)
+    (result,) = report.results
+    assert result.seen is False and result.index == index
+    assert result.cause == "time_out", result.cause
+    return result
 
 
 @pytest.mark.skipif("box_pickup" not in pretrained.names(), reason="no box pickup policy shipped")
@@ -125,27 +136,16 @@ def test_the_shipped_box_policy_carries_a_held_out_box_onto_its_target_board():
     """The shipped box pickup policy on a stored reference of another seed than its training set:
     it tracks the whole pickup with the real shelf and the free box and leaves the box within 3 cm
     of where the reference puts it."""
-    directory = pretrained.pretrained_run("box_pickup")
-    report, rollouts = evaluate(EvalRequest(run=directory, dataset=BOX_REFERENCE, n=1, threads=1), progress=False)
-    (result,) = report.results
-    assert result.seen is False and result.index == 5
-    assert result.cause == "time_out", result.cause
+    result = held_out_result("box_pickup", DATA / "box_pickup" / "seed1_index5", 5)
     assert result.task_metrics["box_placed"] == (1.0, ""), result.task_metrics
     assert result.task_metrics["box_dropped"] == (0.0, "")
-
-
-STAIRS_REFERENCE = Path(__file__).parent / "data" / "stairs" / "seed1_index2"  # its README says how it was made
 
 
 @pytest.mark.skipif("stairs" not in pretrained.names(), reason="no stairs policy shipped")
 def test_the_shipped_stairs_policy_climbs_a_held_out_flight():
     """The shipped stairs policy on a stored ascent of another seed than its training set (three
     9.5-cm risers): it tracks the whole flight on the reference's stairs and ends on the top level."""
-    directory = pretrained.pretrained_run("stairs")
-    report, _ = evaluate(EvalRequest(run=directory, dataset=STAIRS_REFERENCE, n=1, threads=1), progress=False)
-    (result,) = report.results
-    assert result.seen is False and result.index == 2
-    assert result.cause == "time_out", result.cause
+    result = held_out_result("stairs", DATA / "stairs" / "seed1_index2", 2)
     assert result.task_metrics["stair_success"] == (1.0, ""), result.task_metrics
     height_error, unit = result.task_metrics["final_height_error"]
     assert unit == "cm" and height_error < 2.0, result.task_metrics  # measured 0.04 cm
