@@ -161,7 +161,7 @@ class Player:
         ref = ReferenceFrames(reference, self.contacts)
         mujoco.mj_resetData(m, d)  # props at their scene poses
         d.qpos[:nq], d.qvel[:nv] = reference.qpos[0], reference.qvel[0]
-        boxes = {p.name: prop_qpos(m, p.name) for p in reference.scene.props if not p.fixed}
+        boxes = {p.name: prop_qpos(m, p.name) for p in reference.scene.props if p.free}
         for name, at in boxes.items():  # ... or where the reference has them at its first frame
             if name in reference.prop_poses:
                 d.qpos[at] = reference.prop_poses[name][0]

@@ -52,7 +52,7 @@ class TrackedMotion:
     def record(self, robot: Robot, reference: Trajectory) -> Trajectory:
         """A trajectory record of the tracked motion (the reference's names, parameters and scene; its
         free props' poses as they moved)."""
-        boxes = [p.name for p in reference.scene.props if not p.fixed]
+        boxes = [p.name for p in reference.scene.props if p.free]
         poses = {} if self.prop_pose is None else {name: self.prop_pose[:, k] for k, name in enumerate(boxes)}
         return build_trajectory(
             robot, self.qpos, self.qvel, self.joint_torque, self.contact_wrench, self.contact_active,

@@ -190,7 +190,7 @@ class ReferenceBank:
 def _prop_rows(scenes: Sequence[Scene], poses: Sequence[dict[str, np.ndarray]], length: np.ndarray,
                dtype) -> np.ndarray:
     """(rows, nfree, 7) free-prop poses of stacked trajectories (`ReferenceBank.prop_pose`)."""
-    boxes = [[p for p in s.props if not p.fixed] for s in scenes]
+    boxes = [[p for p in s.props if p.free] for s in scenes]
     out = np.zeros((int(length.sum()), max(map(len, boxes), default=0), 7), dtype=dtype)
     out[..., 3] = 1.0
     row = 0

@@ -38,7 +38,9 @@ class PropSlots:
         for props in self.sets:
             for p in props:
                 if not isinstance(p, (Box, Shelf, Desk)):
-                    raise ConfigError(f"unknown prop {p!r}; props are Box, Shelf and Desk")
+                    kind = getattr(p, "kind", type(p).__name__)
+                    raise ConfigError(f"the batched simulator cannot hold a {kind} (prop {getattr(p, 'name', p)!r}) yet; "
+                                      f"its props are boxes, shelves and desks")
         self.nfixed = max(sum(len(p.geoms()) for p in s if p.fixed) for s in self.sets)
         self.nfree = max(len(self.free(i)) for i in range(len(self.sets)))
 
@@ -47,7 +49,7 @@ class PropSlots:
 
     def free(self, index: int) -> list[Box]:
         """The free props (boxes) of set `index`, in slot order."""
-        return [p for p in self.sets[index] if not p.fixed]
+        return [p for p in self.sets[index] if p.free]
 
     def used(self, index: int) -> np.ndarray:
         """(nfree,) bool: which free slots set `index` fills."""
