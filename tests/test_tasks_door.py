@@ -1,7 +1,9 @@
 """Door pushing while walking: the door prop (MuJoCo hinge with spring and damper, the record's
 door pose), the task's plan (reach, then the walk's phases turning about the hinge with both hands
 on the panel), a real solved record whose hand forces hold the door's hinge torque and whose door
-the optimizer's feedback expert opens in MuJoCo as the reference does, and bad inputs."""
+the optimizer's feedback expert opens in MuJoCo as the reference does, bad inputs; and downstream:
+the batched simulator's door slots, the expert opening the door in the tracking environment, a
+door dataset training and evaluating briefly with the door's metric."""
 
 from pathlib import Path
 
@@ -141,10 +143,64 @@ def test_bad_door_inputs_get_one_clear_error(robot):
         get_task("door_push", robot, {"ranges": {"door_mass": [4.0, 40.0], "stiffness": [0.0, 5.0], "damping": [0.0, 1.0]}})
 
 
-def test_the_environment_refuses_a_door_with_one_clear_error(record):
-    """The batched simulator's prop slots hold boxes, shelves and desks; a door dataset stops at
-    the start of training with one line naming what it can hold."""
-    from opt2skill.scene.slots import PropSlots
+def test_the_batched_simulator_gives_each_world_its_door_and_reports_its_angle(robot, record):
+    """Door slots: each world's door at its hinge with its own spring, damper, mass and inertia (or
+    none), reset to a given angle, its pose (the hinge frame) among the moving props' outputs."""
+    from opt2skill.scene import Box
+    from opt2skill.sim.mujoco_sim import MujocoBatchedSim
 
-    with pytest.raises(ConfigError, match=r"cannot hold a door \(prop 'door'\) yet; its props are boxes, shelves and desks"):
-        PropSlots([record.scene.props])
+    door = record.scene.prop("door")
+    sim = MujocoBatchedSim(robot, 3, prop_sets=[record.scene.props, (Box(pos=(0.5, 1.0, 0.15)),), ()])
+    assert (sim.props.nfree, sim.props.nhinged, sim.props.nmoving) == (1, 1, 2)
+    params = sim.params
+    params.props[:] = [0, 1, 2]
+    frame = 700
+    pose = np.tile(sim.props.rest_poses(1), (3, 1, 1))
+    pose[0] = sim.props.rest_poses(0)
+    pose[0, 1] = record.prop_poses["door"][frame]
+    out = sim.reset(np.arange(3), np.tile(record.qpos[frame], (3, 1)), np.tile(record.qvel[frame], (3, 1)),
+                    params=params, prop_pose=pose)
+    assert door.angle_of(out.prop_pose[0, 1]) == pytest.approx(door.angle_of(record.prop_poses["door"][frame]))
+    np.testing.assert_allclose(out.prop_pose[1, 0], sim.props.rest_poses(1)[0], atol=1e-9)  # world 1's box
+    joint = mujoco.mj_name2id(sim.models[0], mujoco.mjtObj.mjOBJ_JOINT, "props_hinged_0/hinge")
+    dof = sim.models[0].jnt_dofadr[joint]
+    assert sim.models[0].jnt_stiffness[joint] == door.stiffness and sim.models[0].dof_damping[dof] == door.damping
+    assert sim.models[0].dof_M0[dof] == pytest.approx(door.hinge_inertia, rel=1e-9)
+    assert sim.models[1].jnt_stiffness[joint] == 0.0  # worlds without a door have a hidden, inert slot
+    out = sim.step(np.tile(record.qpos[frame, 7:], (3, 1)))
+    assert out.prop_vel[0, 1, 5] != 0.0 and np.all(out.prop_pose[1:, 1, 3] == 1.0)
+
+
+def test_the_expert_opens_the_door_in_the_tracking_environment(robot, tmp_path):
+    """The environment rebuilds the door in its world; the optimizer's feedback expert, at the
+    policy's rate in its action space, tracks the reference to the end and opens the door with it."""
+    from opt2skill.expert.play import play_expert
+
+    dataset = _copy(tmp_path)
+    result = play_expert(dataset, n=1)
+    (motion,) = result.motions
+    assert motion.cause == "time_out"
+    reference = read_trajectory(RECORD)
+    metrics = door_metrics(reference, motion.record(robot, reference))
+    assert metrics["door_angle_error"][0] < 3.0  # degrees
+
+
+def test_a_door_dataset_trains_and_evaluates_briefly_with_the_door_metric(tmp_path):
+    from opt2skill.eval.evaluate import EvalRequest, evaluate
+    from opt2skill.rl import session
+    from opt2skill.rl.session import TrainRequest
+
+    dataset, run = _copy(tmp_path), tmp_path / "run"
+    session.train(TrainRequest(dataset=dataset, out=run, steps=192, num_envs=2), progress=False)
+    report, _ = evaluate(EvalRequest(run, dataset=dataset, n=1, split="training"), progress=False)
+    assert {"door_angle_error", "door_final_error"} <= set(report.task_summary())
+    assert not any(name.startswith("door_placed") for name in report.task_summary())  # a box's metric, not a door's
+
+
+def _copy(tmp_path: Path) -> Path:
+    """The committed door dataset, copied (training writes its frame cache beside the data)."""
+    import shutil
+
+    out = tmp_path / "door_push"
+    shutil.copytree(RECORD.parent.parent, out)
+    return out
