@@ -204,3 +204,14 @@ def _copy(tmp_path: Path) -> Path:
     out = tmp_path / "door_push"
     shutil.copytree(RECORD.parent.parent, out)
     return out
+
+
+def test_videos_show_the_door_where_the_record_has_it(robot, record):
+    from opt2skill.eval.render import _prop_placer, scene_model
+
+    model = scene_model(robot, ghost=False, scene=record.scene)
+    data = mujoco.MjData(model)
+    place = _prop_placer(model, record.scene, record.prop_poses)
+    place(data, 700)
+    door = record.scene.prop("door")
+    assert data.qpos[prop_hinge(model, "door")] == pytest.approx(door.angle_of(record.prop_poses["door"][700]))

@@ -534,6 +534,6 @@ INFO = TaskInfo(
     summary="push a spring-closed hinged door open with both hands while walking through the doorway",
     task=DoorPushTask,
     params=PARAMS,
-    demo_ranges={"door_mass": (5.0, 10.0), "stiffness": (2.0, 5.0)},
+    demo_ranges={"door_mass": (5.0, 10.0), "stiffness": (3.0, 6.0)},
     metrics=door_metrics,
 )
