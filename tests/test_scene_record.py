@@ -61,7 +61,7 @@ def test_free_props_reference_poses_round_trip_and_old_files_have_none(robot, tm
     with h5py.File(tmp_path / "000000.h5", "r+") as f:
         del f["traj_000000/prop_poses"]
     assert read_trajectory(tmp_path / "000000.h5").prop_poses == {}
-    with pytest.raises(ValueError, match="not a free prop of the scene"):  # the shelf is fixed
+    with pytest.raises(ValueError, match="not a moving prop of the scene"):  # the shelf is fixed
         build_trajectory(robot, traj.qpos, traj.qvel, traj.joint_torque, traj.contact_wrench, traj.contact_active,
                          task="stand", contact_names=traj.contact_names, params={}, seed=0, scene=SCENE,
                          prop_poses={"shelf": pose})

@@ -46,7 +46,7 @@ def render(
     position = 0 if index is None else ds.position(index)
     traj = ds[position]
     path = out or source / f"render_{int(ds.indices[position]):06d}.mp4"
-    render_video(load_robot(robot or traj.robot), traj.qpos, path, fps=fps, scene=traj.scene)
+    render_video(load_robot(robot or traj.robot), traj.qpos, path, fps=fps, scene=traj.scene, prop_poses=traj.prop_poses)
     console.print(f"wrote {path} ({traj.duration:.1f} s of motion)")
 
 
@@ -67,6 +67,7 @@ def _render_run(run: Path, index: int | None, out: Path | None, fps: int, datase
                 raise
     r, result = rollouts[0], report.results[0]
     path = out or Path(run) / f"render_{result.index:06d}.mp4"
-    render_video(policy.robot, r.tracked.qpos, path, ghost_qpos=r.reference.qpos, fps=fps, scene=r.reference.scene)
+    render_video(policy.robot, r.tracked.qpos, path, ghost_qpos=r.reference.qpos, fps=fps, scene=r.reference.scene,
+                 prop_poses=r.tracked.prop_poses)
     console.print(f"wrote {path}: {report.title()} tracking reference #{result.index} ({report.references['note']}); "
                   f"{r.duration:.1f} of {r.reference.duration:.1f} s tracked ({result.cause}); ghost: the reference")

@@ -144,14 +144,14 @@ def build_trajectory(
 
 
 def checked_prop_poses(poses: dict[str, np.ndarray], frames: int, scene: Scene) -> dict[str, np.ndarray]:
-    """Prop poses as float arrays (frames, 7) with unit quaternions, each of a free prop of `scene`;
-    a ValueError names the first that is not."""
+    """Prop poses as float arrays (frames, 7) with unit quaternions, each of a prop of `scene` that
+    moves (a free box, a door on its hinge); a ValueError names the first that is not."""
     free = {p.name for p in scene.props if not p.fixed}
     out = {}
     for name, pose in poses.items():
         pose = np.array(pose, dtype=float)
         if name not in free:
-            raise ValueError(f"prop pose '{name}' is not a free prop of the scene (free props: {sorted(free)})")
+            raise ValueError(f"prop pose '{name}' is not a moving prop of the scene (moving props: {sorted(free)})")
         if pose.shape != (frames, 7) or not np.all(np.isfinite(pose)):
             raise ValueError(f"prop pose '{name}' must be {frames} finite rows of 7 (x y z qw qx qy qz), "
                              f"got shape {pose.shape}")

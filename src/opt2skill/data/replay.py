@@ -30,6 +30,7 @@ from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
 from opt2skill.model.robot import Robot
 from opt2skill.model.sensors import SensorLayout
 from opt2skill.scene.build import build_model
+from opt2skill.scene.props import Door
 
 
 @dataclass(frozen=True)
@@ -118,9 +119,20 @@ class Replayer:
         mujoco.mj_resetData(self.model, d)  # props at their scene poses, at rest
         d.qpos[: self.nq] = self.traj.qpos[frame]
         d.qvel[: self.nv] = self.traj.qvel[frame]
+        self._open_doors(frame)
         state = np.empty(mujoco.mj_stateSize(self.model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
         mujoco.mj_getState(self.model, d, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
         return state
+
+    def _open_doors(self, frame: int) -> None:
+        """Doors at the reference's angle and rate of `frame` (a restart with the hands on an open
+        door would otherwise put them inside its closed panel); free boxes stay at their scene poses."""
+        for prop in self.traj.scene.props:
+            if isinstance(prop, Door) and prop.name in self.traj.prop_poses:
+                angle = prop.angle_of(self.traj.prop_poses[prop.name])
+                jid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, f"{prop.name}/hinge")
+                self.data.qpos[self.model.jnt_qposadr[jid]] = angle[frame]
+                self.data.qvel[self.model.jnt_dofadr[jid]] = np.gradient(angle, FRAME_DT)[frame]
 
     def run(self, start_frames: list[int], nstep: int) -> list[Rollout]:
         """Batched replays of `nstep` physics steps from each start frame."""

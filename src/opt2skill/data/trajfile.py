@@ -11,8 +11,9 @@ Layout of a file (docs/data.md):
         time, qpos, ..., com     the frame fields, float64 (contact_active bool), gzip + shuffle,
                                  chunked along time
         knots/                   optional solver-grid arrays, dtype kept (feedback gains float32)
-        prop_poses/NAME          optional, (T, 7) float64 reference pose of each free prop of the
-                                 scene (x y z qw qx qy qz); a file without it reads as no poses
+        prop_poses/NAME          optional, (T, 7) float64 reference pose of each moving prop of the
+                                 scene (a box; a door's hinge frame) (x y z qw qx qy qz); a file
+                                 without it reads as no poses
 
 Files are written atomically (`opt2skill.data.atomic`). Anything that is not such a file (not
 HDF5, truncated, another program's HDF5, a malformed attribute) raises a `DataError` that names

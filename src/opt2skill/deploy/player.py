@@ -28,7 +28,8 @@ from opt2skill.geometry import projected_gravity, quat_error
 from opt2skill.model import load_robot
 from opt2skill.model.robot import Robot
 from opt2skill.model.sensors import SensorLayout, contact_wrenches
-from opt2skill.scene.build import build_model, prop_qpos
+from opt2skill.scene.build import build_model, prop_hinge, prop_qpos
+from opt2skill.scene.props import Door
 from opt2skill.scene.description import Scene
 
 MAX_SPEED = 100.0  # any |qvel| beyond this (m/s, rad/s): the simulation diverged
@@ -161,7 +162,7 @@ class Player:
         ref = ReferenceFrames(reference, self.contacts)
         mujoco.mj_resetData(m, d)  # props at their scene poses
         d.qpos[:nq], d.qvel[:nv] = reference.qpos[0], reference.qvel[0]
-        boxes = {p.name: prop_qpos(m, p.name) for p in reference.scene.props if not p.fixed}
+        boxes = {p.name: prop_qpos(m, p.name) for p in reference.scene.props if p.free}
         for name, at in boxes.items():  # ... or where the reference has them at its first frame
             if name in reference.prop_poses:
                 d.qpos[at] = reference.prop_poses[name][0]
@@ -176,7 +177,13 @@ class Player:
         pending: deque[tuple[int, np.ndarray]] = deque()
         readings = np.empty((self.substeps, m.nsensordata))  # each physics step's sensors, decoded per policy step
         qpos, qvel, torque, wrench, active, seen = [d.qpos[:nq].copy()], [d.qvel[:nv].copy()], [], [], [], []
-        props = {name: [d.qpos[at].copy()] for name, at in boxes.items()}
+        doors = {p.name: (p, prop_hinge(m, p.name)) for p in reference.scene.props if isinstance(p, Door)}
+
+        def prop_poses_now() -> dict[str, np.ndarray]:  # boxes' poses, doors' hinge frames
+            return {**{name: d.qpos[at].copy() for name, at in boxes.items()},
+                    **{name: door.pose(d.qpos[at]) for name, (door, at) in doors.items()}}
+
+        props = {name: [pose] for name, pose in prop_poses_now().items()}
         substep, cause, action = 0, "time_out", None
         for t in range(reference.num_frames - 1):
             if action is not None:
@@ -199,8 +206,8 @@ class Player:
                 break
             qpos.append(d.qpos[:nq].copy())
             qvel.append(d.qvel[:nv].copy())
-            for name, at in boxes.items():
-                props[name].append(d.qpos[at].copy())
+            for name, pose in prop_poses_now().items():
+                props[name].append(pose)
             torque.append(self.sensors.take(readings, "joint_torque").mean(axis=0))  # MEAN over the step
             wrench.append(self._wrenches(readings).mean(axis=0))
             active.append(self._found(readings[-1]) > 0)  # LAST

@@ -87,14 +87,14 @@ class TrackingEnv:
             raise ConfigError(f"the simulator's policy step is {self.sim.policy_dt} s; references are at {FRAME_DT} s")
         self.terrains = list(self.sim.terrains)
         self._made_on_flat = np.array([isinstance(grounds[g], Flat) for g in ground], dtype=bool)
-        self._props_on = self.sim.props.nfree > 0
-        self._prop_used = np.zeros((len(self._prop_set), self.sim.props.nfree), dtype=bool)  # (trajectories, nfree)
+        self._props_on = self.sim.props.nmoving > 0
+        self._prop_used = np.zeros((len(self._prop_set), self.sim.props.nmoving), dtype=bool)  # (trajectories, nmoving)
         for t, i in enumerate(self._prop_set):
             self._prop_used[t] = self.sim.props.used(int(i))
         obs = config.observations
         self.contact_names = bank.contact_names
         self._contact_rows = SensorLayout.from_model(robot.mj_model, robot.config).contact_rows(self.contact_names)
-        self.layout: ObservationLayout = layout(obs, self.nu, len(self.contact_names), self.sim.props.nfree)
+        self.layout: ObservationLayout = layout(obs, self.nu, len(self.contact_names), self.sim.props.nmoving)
         ee_names = list(robot.config.end_effectors)
         self._ee_index = np.array([ee_names.index(e) for e in obs.end_effectors])
         self.default_pose = robot.config.default_pose.astype(np.float64)
@@ -336,7 +336,7 @@ class TrackingEnv:
         return np.linalg.norm(self._prop_offsets(out, rows), axis=-1).max(axis=1)
 
     def _prop_offsets(self, out: SimStep, rows: np.ndarray) -> np.ndarray:
-        """(N, nfree, 3) free props' positions minus their reference positions at `rows` (lifted by the
+        """(N, nmoving, 3) moving props' positions minus their reference positions at `rows` (lifted by the
         world's z offset, as the props were at reset), world axes; 0 in unused slots."""
         ref = self.bank.prop_pose[rows, :, :3].astype(np.float64)
         ref[..., 2] += self.sim.z_offset[:, None]

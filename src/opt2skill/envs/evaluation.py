@@ -20,6 +20,7 @@ from opt2skill.data.record import Trajectory, build_trajectory
 from opt2skill.envs.env import CAUSES, TrackingEnv
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
+from opt2skill.scene.slots import moving
 
 Policy = Callable[[np.ndarray], np.ndarray]  # actor observations (N, actor_dim) -> actions (N, nu)
 
@@ -38,8 +39,10 @@ class TrackedMotion:
     cause: str  # why the episode ended (CAUSES)
     reference_frames: int  # frames of the reference
     start_frame: int = 0  # the reference frame the episode started from (frame 0 of this motion)
-    # (T, nfree, 7) the free props' poses (the bank's slots), height relative to the start level
+    # (T, nmoving, 7) the moving props' poses (the bank's slots: boxes, then doors' hinge frames),
+    # height relative to the start level
     prop_pose: np.ndarray | None = None
+    free_slots: int = 0  # the bank's box slots (its door slots follow)
 
     @property
     def steps(self) -> int:
@@ -51,9 +54,11 @@ class TrackedMotion:
 
     def record(self, robot: Robot, reference: Trajectory) -> Trajectory:
         """A trajectory record of the tracked motion (the reference's names, parameters and scene; its
-        free props' poses as they moved)."""
-        boxes = [p.name for p in reference.scene.props if not p.fixed]
-        poses = {} if self.prop_pose is None else {name: self.prop_pose[:, k] for k, name in enumerate(boxes)}
+        moving props' poses as they moved)."""
+        props = moving(reference.scene.props)  # the bank's slots: boxes, then doors
+        boxes = sum(p.free for p in props)
+        slots = [k if p.free else self.free_slots + k - boxes for k, p in enumerate(props)]
+        poses = {} if self.prop_pose is None else {p.name: self.prop_pose[:, s] for p, s in zip(props, slots)}
         return build_trajectory(
             robot, self.qpos, self.qvel, self.joint_torque, self.contact_wrench, self.contact_active,
             task=reference.task, contact_names=reference.contact_names, params=reference.params,
@@ -115,6 +120,6 @@ def track(env: TrackingEnv, policy: Policy, trajectories: np.ndarray,
             contact_active=np.concatenate([active[:k, w], active[last, w]]),
             reward=float(reward[w]), terms={name: float(v[w]) for name, v in terms.items()},
             cause=CAUSES[cause[w]], reference_frames=int(env.bank.length[trajectories[w]]),
-            start_frame=int(frames[w]), prop_pose=prop,
+            start_frame=int(frames[w]), prop_pose=prop, free_slots=env.sim.props.nfree,
         ))
     return motions

@@ -18,6 +18,7 @@ from opt2skill.errors import DataError
 from opt2skill.geometry import quat_to_mat, yaw_of
 from opt2skill.model.robot import Robot
 from opt2skill.scene.description import Scene
+from opt2skill.scene.slots import moving
 from opt2skill.scene.terrain import Terrain
 
 FIELDS = ("qpos", "qvel", "base_lin_vel", "base_ang_vel", "joint_torque", "contact_wrench", "ee_pos_base")
@@ -43,9 +44,10 @@ class ReferenceBank:
     task: str
     xy_range: tuple[tuple[float, float], tuple[float, float]]  # extent of the base paths, for terrain
     scenes: tuple[Scene, ...]  # (n,) the scene each trajectory was made on
-    # (rows, nfree, 7) reference pose of each free prop (box) slot per row (x y z, quaternion w x y z):
-    # a trajectory's boxes in its scene's order, from the record's `prop_poses` (its scene pose where
-    # the record has none); slots its scene does not fill hold the identity at the origin.
+    # (rows, nmoving, 7) reference pose of each moving prop slot per row (x y z, quaternion w x y z):
+    # a trajectory's boxes in its scene's order, then its doors (their hinge frames), from the
+    # record's `prop_poses` (its scene pose where the record has none); slots its scene does not
+    # fill hold the identity at the origin.
     prop_pose: np.ndarray
     contact_names: tuple[str, ...]  # the references' contacts (feet, hands, elbows), the order of their forces
     # False for kinematic references (IK, retargeted human motion): their torques and contact forces
@@ -167,7 +169,7 @@ class ReferenceBank:
         return list(sets), np.array([sets[s.props] for s in self.scenes], dtype=np.int64)
 
     def prop_state(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Free props' poses (k, nfree, 7) and velocities (k, nfree, 6), float64, of reference rows
+        """Moving props' poses (k, nmoving, 7) and velocities (k, nmoving, 6), float64, of reference rows
         that have a next row: the linear velocity by finite difference to it, the angular zero."""
         pose = self.prop_pose[rows].astype(np.float64)
         vel = np.zeros((*pose.shape[:2], 6))
@@ -189,14 +191,26 @@ class ReferenceBank:
 
 def _prop_rows(scenes: Sequence[Scene], poses: Sequence[dict[str, np.ndarray]], length: np.ndarray,
                dtype) -> np.ndarray:
-    """(rows, nfree, 7) free-prop poses of stacked trajectories (`ReferenceBank.prop_pose`)."""
-    boxes = [[p for p in s.props if not p.fixed] for s in scenes]
-    out = np.zeros((int(length.sum()), max(map(len, boxes), default=0), 7), dtype=dtype)
+    """(rows, nmoving, 7) moving props' poses of stacked trajectories (`ReferenceBank.prop_pose`):
+    boxes, then doors (`scene.slots.moving`), each at its scene pose where the record has none."""
+    props = [moving(s.props) for s in scenes]
+    nfree = max((sum(p.free for p in m) for m in props), default=0)
+    ndoors = max((len(m) - sum(p.free for p in m) for m in props), default=0)
+    out = np.zeros((int(length.sum()), nfree + ndoors, 7), dtype=dtype)
     out[..., 3] = 1.0
     row = 0
-    for free, pose, n in zip(boxes, poses, length):
-        for k, box in enumerate(free):
-            (g,) = box.geoms()
-            out[row:row + n, k] = pose[box.name] if box.name in pose else np.r_[g.centre, g.quat]
+    for these, pose, n in zip(props, poses, length):
+        boxes = [p for p in these if p.free]
+        for k, prop in enumerate(these):
+            slot = k if prop.free else nfree + k - len(boxes)
+            out[row:row + n, slot] = pose[prop.name] if prop.name in pose else _rest_pose(prop)
         row += n
     return out
+
+
+def _rest_pose(prop) -> np.ndarray:
+    """A moving prop's scene pose: a box's centre and orientation, a door's closed hinge frame."""
+    if prop.free:
+        (g,) = prop.geoms()
+        return np.r_[g.centre, g.quat]
+    return prop.pose(0.0)

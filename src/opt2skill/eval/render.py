@@ -18,9 +18,10 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import ConfigError
 from opt2skill.model.mujoco_model import load_spec
 from opt2skill.model.robot import Robot
-from opt2skill.scene.build import add_scene, show_ground
+from opt2skill.scene.build import add_scene, prop_hinge, prop_qpos, show_ground
 from opt2skill.scene.description import Scene
 from opt2skill.scene.ground import TerrainScene
+from opt2skill.scene.props import Door
 from opt2skill.scene.terrain import Terrain
 
 GHOST_RGBA = (0.2, 0.7, 1.0, 0.3)
@@ -76,8 +77,11 @@ def render_video(
     add_terrain: Callable[[mujoco.MjSpec], None] | None = None,
     terrain: Terrain | None = None,
     scene: Scene | None = None,
+    prop_poses: dict[str, np.ndarray] | None = None,
 ) -> Path:
     """Write `qpos` (T, nq) frames, `frame_dt` apart, as a video; the ghost shows `ghost_qpos`.
+    The scene's moving props are at `prop_poses` (a record's: name -> (T, 7)) where given, else at
+    their scene poses.
 
     The camera looks at the robot's base from behind and to the side and follows it smoothly.
     """
@@ -91,7 +95,8 @@ def render_video(
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     model = scene_model(robot, ghost=ghost_qpos is not None, add_terrain=add_terrain, terrain=terrain, scene=scene)
-    data = mujoco.MjData(model)  # props at their scene poses (a record holds the robot's motion only)
+    data = mujoco.MjData(model)  # props at their scene poses, unless posed below
+    place = _prop_placer(model, scene, prop_poses or {})
     ghost_at = ghost_qpos_address(model, robot) if ghost_qpos is not None else 0
     times = np.arange(0.0, (len(qpos) - 1) * frame_dt + 1e-9, 1.0 / fps)
     frames = np.minimum(np.rint(times / frame_dt).astype(int), len(qpos) - 1)
@@ -103,6 +108,7 @@ def render_video(
     with mujoco.Renderer(model, *size) as renderer, imageio.get_writer(tmp, fps=fps, codec="libx264", macro_block_size=8) as writer:
         for f in frames:
             data.qpos[: robot.nq] = qpos[f]
+            place(data, f)
             if ghost_qpos is not None:
                 data.qpos[ghost_at : ghost_at + robot.nq] = ghost_qpos[min(f, len(ghost_qpos) - 1)]
             mujoco.mj_kinematics(model, data)
@@ -112,3 +118,24 @@ def render_video(
             writer.append_data(renderer.render())
     tmp.replace(out)
     return out
+
+
+def _prop_placer(model: mujoco.MjModel, scene: Scene | None, poses: dict[str, np.ndarray]):
+    """(data, frame) -> None: puts each posed prop of the scene where its poses say at that frame
+    (a box's free joint, a door's hinge angle)."""
+    slots = []
+    for prop in scene.props if scene is not None else ():
+        if prop.name not in poses:
+            continue
+        pose = np.asarray(poses[prop.name], dtype=float)
+        if isinstance(prop, Door):
+            at = prop_hinge(model, prop.name)
+            slots.append((slice(at, at + 1), prop.angle_of(pose)[:, None]))
+        elif prop.free:
+            slots.append((prop_qpos(model, prop.name), pose))
+
+    def place(data: mujoco.MjData, frame: int) -> None:
+        for at, values in slots:
+            data.qpos[at] = values[min(frame, len(values) - 1)]
+
+    return place

@@ -38,7 +38,7 @@ def prop_metrics(reference: Trajectory, tracked: Trajectory) -> dict[str, tuple[
     within `PLACED` m of where the reference puts it (its mean is the task's success rate)."""
     out = {}
     for name, pose in tracked.prop_poses.items():
-        if name not in reference.prop_poses:
+        if name not in reference.prop_poses or not reference.scene.prop(name).free:  # a door has its task's metric
             continue
         ref = reference.prop_poses[name]
         n = min(len(pose), len(ref))

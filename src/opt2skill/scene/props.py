@@ -1,10 +1,11 @@
-"""Props: what the robot touches besides the ground (a box, a shelf, a desk), as data.
+"""Props: what the robot touches besides the ground (a box, a shelf, a desk, a door), as data.
 
 A prop is a frozen description in SI units, world frame, posed by a position and a yaw. It gives its
 MuJoCo geoms (`geoms()`: boxes at the prop's initial pose) and its contact surfaces (`surfaces()`:
 the rectangles that hands, feet or other props touch, where trajectory optimization puts contacts).
 A `Box` is a free body: only contacts move or hold it, it is never welded to a hand. Shelves and
-desks are fixed: geoms of the world body.
+desks are fixed: geoms of the world body. A `Door` is a panel on a vertical hinge whose spring and
+damper close it: its pose moves with one hinge angle.
 """
 
 from __future__ import annotations
@@ -58,6 +59,8 @@ class Box:
     """A box on a free joint: `size` its full extents along its own x, y, z (m), `pos` its centre."""
 
     kind: ClassVar[str] = "box"
+    fixed: ClassVar[bool] = False  # geoms of the world body
+    free: ClassVar[bool] = True  # a body on a free joint (a door moves too, on its hinge)
     size: tuple[float, float, float] = (0.3, 0.3, 0.3)
     mass: float = 1.0  # kg, uniform density
     pos: tuple[float, float, float] = (0.5, 0.0, 0.8)
@@ -82,10 +85,6 @@ class Box:
         if self.pos[2] < self.size[2] / 2 - 1e-9:
             raise ConfigError(f"{where}: its bottom is below z = 0 (pos z {self.pos[2]:g} m < half its height "
                               f"{self.size[2] / 2:g} m)")
-
-    @property
-    def fixed(self) -> bool:
-        return False
 
     @property
     def contact(self) -> tuple[int, tuple[float, float, float]]:
@@ -123,6 +122,8 @@ class Shelf:
     along its y; `boards` are the heights of the boards' top surfaces, lowest first."""
 
     kind: ClassVar[str] = "shelf"
+    fixed: ClassVar[bool] = True
+    free: ClassVar[bool] = False
     pos: tuple[float, float] = (0.7, 0.0)
     yaw: float = 0.0
     width: float = 0.8
@@ -143,12 +144,8 @@ class Shelf:
                               f"({self.thickness:g} m), got {list(self.boards)}")
 
     @property
-    def fixed(self) -> bool:
-        return True
-
-    @property
     def contact(self) -> tuple[int, tuple[float, float, float]]:
-        return 3, (self.friction, *FLOOR_FRICTION[1:])
+        return _sliding(self.friction)
 
     def geoms(self) -> list[Geom]:
         return _boards_on_posts(self, [f"board_{i}" for i in range(len(self.boards))])
@@ -163,6 +160,8 @@ class Desk:
     `Shelf`."""
 
     kind: ClassVar[str] = "desk"
+    fixed: ClassVar[bool] = True
+    free: ClassVar[bool] = False
     pos: tuple[float, float] = (0.7, 0.0)
     yaw: float = 0.0
     height: float = 0.9
@@ -181,12 +180,8 @@ class Desk:
         return (self.height,)
 
     @property
-    def fixed(self) -> bool:
-        return True
-
-    @property
     def contact(self) -> tuple[int, tuple[float, float, float]]:
-        return 3, (self.friction, *FLOOR_FRICTION[1:])
+        return _sliding(self.friction)
 
     def geoms(self) -> list[Geom]:
         return _boards_on_posts(self, ["top"])
@@ -195,8 +190,120 @@ class Desk:
         return _tops(self, ["top"])
 
 
-Prop = Box | Shelf | Desk
-PROP_KINDS: dict[str, type] = {cls.kind: cls for cls in (Box, Shelf, Desk)}
+@dataclass(frozen=True)
+class Door:
+    """A door panel on a vertical hinge at `hinge` (x, y), closed by a spring and a damper.
+
+    Closed, the panel stands in the plane through the hinge facing along `yaw` (at yaw 0 its faces
+    look along x, the robot's side being -x) and reaches `width` m from the hinge towards -y (turned
+    by yaw); it opens by turning about +z (the free edge towards +x at yaw 0), from 0 to `max_angle`,
+    and a stop holds it at 0 (the frame). Hinge torque resisting an opening: stiffness * angle +
+    damping * rate (MuJoCo's joint spring and damper, `springref` 0) plus the panel's inertia about
+    the hinge. Its pose is the hinge frame's: (hinge x, y, 0) and the yaw plus the angle about z."""
+
+    kind: ClassVar[str] = "door"
+    fixed: ClassVar[bool] = False
+    free: ClassVar[bool] = False
+    hinge: tuple[float, float] = (0.6, 0.45)
+    yaw: float = 0.0
+    width: float = 0.8  # m, hinge to free edge
+    height: float = 2.0  # m, the panel's extent from its bottom
+    thickness: float = 0.04  # m
+    bottom: float = 0.01  # m of gap under the panel
+    mass: float = 8.0  # kg, uniform panel
+    stiffness: float = 4.0  # N m / rad, the closing spring
+    damping: float = 2.0  # N m s / rad
+    max_angle: float = 1.9  # rad, the opening stop
+    friction: float = 0.5  # of the panel's faces
+    name: str = "door"
+
+    def __post_init__(self) -> None:
+        where = f"door '{self.name}'"
+        _name(self.name)
+        _vector(where, "hinge", self.hinge, 2, -100.0, 100.0, "m")
+        _common(where, self.yaw, self.friction)
+        _number(where, "width", self.width, 0.3, 2.0, "m")
+        _number(where, "height", self.height, 0.5, 3.0, "m")
+        _number(where, "thickness", self.thickness, 0.01, 0.15, "m")
+        _number(where, "bottom", self.bottom, 0.0, 0.5, "m")
+        _number(where, "mass", self.mass, 0.5, 100.0, "kg")
+        _number(where, "stiffness", self.stiffness, 0.0, 200.0, "N m/rad")
+        _number(where, "damping", self.damping, 0.0, 200.0, "N m s/rad")
+        _number(where, "max_angle", self.max_angle, 0.2, 3.0, "rad")
+
+    @property
+    def contact(self) -> tuple[int, tuple[float, float, float]]:
+        return _sliding(self.friction)
+
+    @property
+    def panel_centre(self) -> np.ndarray:
+        """The panel's centre in the hinge frame (closed)."""
+        return np.array([0.0, -self.width / 2, self.bottom + self.height / 2])
+
+    @property
+    def inertia(self) -> np.ndarray:
+        """Principal moments (3,) about the panel's centre, along the hinge frame's axes."""
+        a, b, c = self.thickness, self.width, self.height
+        return self.mass / 12 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
+
+    @property
+    def hinge_inertia(self) -> float:
+        """kg m^2 about the hinge axis: the panel's own about its centre plus m d^2 (its centre's distance)."""
+        return float(self.inertia[2] + self.mass * (self.width / 2) ** 2)
+
+    def hinge_torque(self, angle, rate, acceleration) -> np.ndarray:
+        """N m the hands must apply about the hinge to move the door along (angle, rate, acceleration)."""
+        return self.stiffness * np.asarray(angle) + self.damping * np.asarray(rate) + self.hinge_inertia * np.asarray(acceleration)
+
+    def pose(self, angle) -> np.ndarray:
+        """(..., 7) the hinge frame's pose (x y z qw qx qy qz) at hinge angles `angle` (rad)."""
+        angle = np.asarray(angle, dtype=float)
+        half = (self.yaw + angle) / 2
+        out = np.zeros((*angle.shape, 7))
+        out[..., :2] = self.hinge
+        out[..., 3], out[..., 6] = np.cos(half), np.sin(half)
+        return out
+
+    def angle_of(self, pose: np.ndarray) -> np.ndarray:
+        """The hinge angles (rad) of poses (..., 7) `pose` gives."""
+        pose = np.asarray(pose, dtype=float)
+        return np.angle(np.exp(1j * (2 * np.arctan2(pose[..., 6], pose[..., 3]) - self.yaw)))
+
+    def panel_point(self, angle, along: float, height: float, side: float = -1.0) -> np.ndarray:
+        """(..., 3) the world point `along` m from the hinge on the panel's face at `height` m above
+        the floor, on the robot's side (`side` -1, the face towards -x at yaw 0) or the other (+1)."""
+        angle = np.asarray(angle, dtype=float)
+        heading = self.yaw + angle
+        u = np.stack([np.sin(heading), -np.cos(heading), np.zeros_like(heading)], axis=-1)  # hinge to free edge
+        n = self.face_normal(angle, side)
+        return np.array([*self.hinge, height]) + along * u + (self.thickness / 2) * n
+
+    def face_normal(self, angle, side: float = -1.0) -> np.ndarray:
+        """(..., 3) the outward unit normal of the panel's face on `side` at hinge angles `angle`."""
+        heading = self.yaw + np.asarray(angle, dtype=float)
+        return -side * np.stack([-np.cos(heading), -np.sin(heading), np.zeros_like(heading)], axis=-1)
+
+    def geoms(self) -> list[Geom]:
+        """The closed panel, in the world."""
+        rot = _yaw_matrix(self.yaw)
+        centre = np.array([*self.hinge, 0.0]) + rot @ self.panel_centre
+        half = np.array([self.thickness, self.width, self.height]) / 2
+        return [Geom(self.name, centre, half, _yaw_quat(self.yaw))]
+
+    def surfaces(self) -> list[Surface]:
+        """The closed panel's two faces: `front` (the robot's side, -x at yaw 0) and `back`."""
+        rot, (g,) = _yaw_matrix(self.yaw), self.geoms()
+        return [Surface(self.name, name, g.centre + g.half[0] * sign * rot[:, 0], sign * rot[:, 0], rot[:, 1:].T,
+                        g.half[1:], self.friction, moves=True) for name, sign in (("front", -1.0), ("back", 1.0))]
+
+
+Prop = Box | Shelf | Desk | Door
+PROP_KINDS: dict[str, type] = {cls.kind: cls for cls in (Box, Shelf, Desk, Door)}
+
+
+def _sliding(friction: float) -> tuple[int, tuple[float, float, float]]:
+    """MuJoCo condim and friction of a prop's geoms with sliding friction only (condim 3)."""
+    return 3, (friction, *FLOOR_FRICTION[1:])
 
 
 def _check_furniture(prop: Shelf | Desk) -> str:

@@ -9,10 +9,15 @@ different props holds slots for the union of them, as `ground.TerrainScene` does
 - free props (boxes): bodies with a free joint and one box geom, `props_free_K`, as many as the set
   with the most boxes has; a world gives each the size, mass, inertia and friction of its set's
   box, in order. An unused free slot is parked: no collisions, invisible, its weight cancelled by
-  MuJoCo's gravity compensation (`body_gravcomp`), so at rest it stays exactly put.
+  MuJoCo's gravity compensation (`body_gravcomp`), so at rest it stays exactly put;
+- doors: bodies on a hinge joint about z with one panel geom, `props_hinged_K`, as many as the set
+  with the most doors has; a world puts each at its door's hinge and gives it the door's panel,
+  mass, inertia, spring, damper, stop and friction. An unused one is hidden, without collisions.
 
 The slots come after the robot in the tree: the robot's qpos and qvel stay first, then each free
-slot's 7 positions and 6 velocities. A prop set of a world is an index (`WorldParams.props`).
+slot's 7 positions and 6 velocities, then each door's angle and rate. A prop set of a world is an
+index (`WorldParams.props`). The props that move (boxes, then doors: `moving`) have a pose each in
+the simulator's outputs and resets, a door's being its hinge frame's (`Door.pose`).
 """
 
 from __future__ import annotations
@@ -26,10 +31,15 @@ from opt2skill.errors import ConfigError
 from opt2skill.model.mujoco_model import GROUND_CONAFFINITY, GROUND_CONTYPE
 from opt2skill.scene.build import PROP_PRIORITY, PROP_RGBA
 from opt2skill.scene.ground import place_box, refit_tree
-from opt2skill.scene.props import Box, Desk, Prop, Shelf
+from opt2skill.scene.props import Box, Desk, Door, Prop, Shelf
 
-FIXED, FREE = "props_fixed_{}", "props_free_{}"
+FIXED, FREE, HINGED = "props_fixed_{}", "props_free_{}", "props_hinged_{}"
 PARKED = np.array([0.0, 0.0, -10.0, 1.0, 0.0, 0.0, 0.0])  # an unused free slot, below the ground
+
+
+def moving(props: Sequence[Prop]) -> list[Box | Door]:
+    """The props of a set that move, in slot order: its boxes, then its doors."""
+    return [p for p in props if p.free] + [p for p in props if isinstance(p, Door)]
 
 
 class PropSlots:
@@ -37,28 +47,52 @@ class PropSlots:
         self.sets = tuple(tuple(s) for s in prop_sets) or ((),)
         for props in self.sets:
             for p in props:
-                if not isinstance(p, (Box, Shelf, Desk)):
-                    raise ConfigError(f"unknown prop {p!r}; props are Box, Shelf and Desk")
+                if not isinstance(p, (Box, Shelf, Desk, Door)):
+                    raise ConfigError(f"unknown prop {p!r}; props are Box, Shelf, Desk and Door")
         self.nfixed = max(sum(len(p.geoms()) for p in s if p.fixed) for s in self.sets)
         self.nfree = max(len(self.free(i)) for i in range(len(self.sets)))
+        self.nhinged = max(len(self.doors(i)) for i in range(len(self.sets)))
+        self.nmoving = self.nfree + self.nhinged  # poses in the outputs: boxes' slots, then doors'
 
     def __bool__(self) -> bool:
-        return bool(self.nfixed or self.nfree)
+        return bool(self.nfixed or self.nmoving)
 
     def free(self, index: int) -> list[Box]:
         """The free props (boxes) of set `index`, in slot order."""
-        return [p for p in self.sets[index] if not p.fixed]
+        return [p for p in self.sets[index] if p.free]
+
+    def doors(self, index: int) -> list[Door]:
+        return [p for p in self.sets[index] if isinstance(p, Door)]
 
     def used(self, index: int) -> np.ndarray:
-        """(nfree,) bool: which free slots set `index` fills."""
-        return np.arange(self.nfree) < len(self.free(index))
+        """(nmoving,) bool: which free slots, then which door slots, set `index` fills."""
+        return np.r_[np.arange(self.nfree) < len(self.free(index)), np.arange(self.nhinged) < len(self.doors(index))]
 
     def rest_poses(self, index: int) -> np.ndarray:
-        """(nfree, 7) the boxes of set `index` at their scene poses, unused slots parked."""
-        out = np.tile(PARKED, (self.nfree, 1))
+        """(nmoving, 7) the boxes of set `index` at their scene poses, unused slots parked, then its
+        doors closed (unused: the identity at the origin)."""
+        out = np.tile(PARKED, (self.nmoving, 1))
         for k, box in enumerate(self.free(index)):
             (g,) = box.geoms()
             out[k] = np.r_[g.centre, g.quat]
+        out[self.nfree:] = [1.0 if i == 3 else 0.0 for i in range(7)]
+        for k, door in enumerate(self.doors(index)):
+            out[self.nfree + k] = door.pose(0.0)
+        return out
+
+    def door_angles(self, index: int, poses: np.ndarray) -> np.ndarray:
+        """(..., nhinged) the hinge angles of set `index`'s doors in poses (..., nhinged, 7); 0 in unused slots."""
+        out = np.zeros(poses.shape[:-1])
+        for k, door in enumerate(self.doors(index)):
+            out[..., k] = door.angle_of(poses[..., k, :])
+        return out
+
+    def door_poses(self, index: int, angles: np.ndarray) -> np.ndarray:
+        """(..., nhinged, 7) the hinge frames of set `index`'s doors at angles (..., nhinged)."""
+        out = np.zeros((*angles.shape, 7))
+        out[..., 3] = 1.0
+        for k, door in enumerate(self.doors(index)):
+            out[..., k, :] = door.pose(angles[..., k])
         return out
 
     def add_to(self, spec: mujoco.MjSpec) -> None:
@@ -75,6 +109,12 @@ class PropSlots:
                                            inertia=[0.01, 0.01, 0.01], explicitinertial=True, gravcomp=1.0)
             body.add_freejoint(name=f"{FREE.format(k)}/free")
             body.add_geom(name=FREE.format(k), **box)
+        for k in range(self.nhinged):
+            body = spec.worldbody.add_body(name=HINGED.format(k), mass=1.0, ipos=[0.0, 0.0, 0.0],
+                                           inertia=[0.01, 0.01, 0.01], explicitinertial=True)
+            body.add_joint(name=f"{HINGED.format(k)}/hinge", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0.0, 0.0, 1.0],
+                           limited=mujoco.mjtLimited.mjLIMITED_TRUE, range=[0.0, 1.0])
+            body.add_geom(name=HINGED.format(k), **box)
 
     def bind(self, model: mujoco.MjModel, nq_robot: int) -> None:
         """Find the slots in a model compiled from a spec they were added to."""
@@ -85,10 +125,19 @@ class PropSlots:
         self._free_geom = [gid(FREE.format(k)) for k in range(self.nfree)]
         self._free_body = [int(model.geom_bodyid[g]) for g in self._free_geom]
         joints = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{FREE.format(k)}/free") for k in range(self.nfree)]
-        if min([*self._fixed, *self._free_geom, *joints], default=0) < 0:
+        self._hinged_geom = [gid(HINGED.format(k)) for k in range(self.nhinged)]
+        self._hinged_body = [int(model.geom_bodyid[g]) for g in self._hinged_geom]
+        self._hinges = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"{HINGED.format(k)}/hinge")
+                        for k in range(self.nhinged)]
+        if min([*self._fixed, *self._free_geom, *joints, *self._hinged_geom, *self._hinges], default=0) < 0:
             raise ConfigError("the model was not built with these prop slots")
         if any(int(model.jnt_qposadr[j]) != nq_robot + 7 * k for k, j in enumerate(joints)):
             raise ConfigError("the prop slots' free joints must follow the robot's joints in qpos")
+        if any(int(model.jnt_qposadr[j]) != nq_robot + 7 * self.nfree + k for k, j in enumerate(self._hinges)):
+            raise ConfigError("the door slots' hinges must follow the free slots in qpos")
+        for body in self._hinged_body:  # compiled with the inertia at the hinge; a door's is at its panel's centre
+            model.body_simple[body] = 0
+            model.body_sameframe[body] = mujoco.mjtSameFrame.mjSAMEFRAME_NONE
 
     def apply(self, model: mujoco.MjModel, index: int, friction_scale: float = 1.0) -> None:
         """Make `model` show prop set `index` (its fixed props posed, its boxes sized and weighed) and
@@ -116,6 +165,23 @@ class PropSlots:
                 self._show(model, gid, box, friction_scale)
             else:
                 model.body_gravcomp[body] = 1.0
+                self._hide(model, gid)
+            refit_tree(model, body)
+        doors = self.doors(index)
+        for k, (gid, body, joint) in enumerate(zip(self._hinged_geom, self._hinged_body, self._hinges)):
+            dof = model.jnt_dofadr[joint]
+            if k < len(doors):
+                door = doors[k]
+                (g,) = door.geoms()
+                model.body_pos[body], model.body_quat[body] = [*door.hinge, 0.0], door.pose(0.0)[3:]
+                place_box(model, gid, door.panel_centre, g.half)
+                model.body_mass[body], model.body_inertia[body] = door.mass, door.inertia
+                model.body_ipos[body] = door.panel_centre
+                model.jnt_stiffness[joint], model.dof_damping[dof] = door.stiffness, door.damping
+                model.jnt_range[joint] = [0.0, door.max_angle]
+                self._show(model, gid, door, friction_scale)
+            else:
+                model.jnt_stiffness[joint] = model.dof_damping[dof] = 0.0
                 self._hide(model, gid)
             refit_tree(model, body)
 

@@ -81,8 +81,11 @@ class MujocoBatchedSim(HostBookkeeping):
         nq, nv = robot.nq, robot.mj_model.nv
         self._qpos = slice(1, 1 + nq)
         self._qvel = slice(1 + base.nq, 1 + base.nq + nv)
-        self._prop_qpos = slice(1 + nq, 1 + base.nq)
-        self._prop_qvel = slice(1 + base.nq + nv, 1 + base.nq + base.nv)
+        nfree = self.props.nfree  # free slots' 7 positions and 6 velocities, then the doors' hinges
+        self._prop_qpos = slice(1 + nq, 1 + nq + 7 * nfree)
+        self._prop_qvel = slice(1 + base.nq + nv, 1 + base.nq + nv + 6 * nfree)
+        self._hinge_qpos = slice(self._prop_qpos.stop, 1 + base.nq)
+        self._hinge_qvel = slice(self._prop_qvel.stop, 1 + base.nq + base.nv)
         self._all_qvel = slice(1 + base.nq, 1 + base.nq + base.nv)
         self._delay = ActionDelay(self.nworld, base.nu, S, self._max_delay_steps)
         self._params = WorldParams.nominal(self.nworld, base.nbody, base.nu)
@@ -144,7 +147,8 @@ class MujocoBatchedSim(HostBookkeeping):
             d.qvel[:nv], d.qvel[nv:] = qvel[row], prop_v[row]
             self._z_offset[w] = self._lift_onto_terrain(model, d, w)
             d.qpos[2] += self._z_offset[w]
-            d.qpos[nq + 2::7] += self._z_offset[w] * self.props.used(int(self._params.props[w]))  # props held or set down
+            free = self.props.used(int(self._params.props[w]))[: self.props.nfree]
+            d.qpos[nq + 2 : nq + 7 * self.props.nfree : 7] += self._z_offset[w] * free  # props held or set down
             d.ctrl[:] = targets[row] if targets is not None else d.qpos[7:nq]
             mujoco.mj_forward(model, d)
             mujoco.mj_getState(model, d, self._state[w], FULLPHYSICS)
@@ -153,7 +157,7 @@ class MujocoBatchedSim(HostBookkeeping):
         state = self._state[worlds]
         out = self._decoder.decode(
             state[:, 0], state[:, self._qpos], state[:, self._qvel], state[:, self._qvel], sensors, 0.0, self.policy_dt,
-            self._gravity[worlds], *self._prop_outputs(state),
+            self._gravity[worlds], *self._prop_outputs(state, worlds),
         )
         if self._last is not None:
             self._last.assign(worlds, out)
@@ -172,7 +176,7 @@ class MujocoBatchedSim(HostBookkeeping):
         self._state[:] = end
         out = self._decoder.decode(
             end[:, 0].copy(), end[:, self._qpos].copy(), end[:, self._qvel].copy(), start[:, self._qvel],
-            self._out_sensor, self._dt, self.policy_dt, self._gravity, *self._prop_outputs(end),
+            self._out_sensor, self._dt, self.policy_dt, self._gravity, *self._prop_outputs(end, np.arange(self.nworld)),
         )
         bad = self._diverged(start[:, 0], end)
         if bad.any():
@@ -203,22 +207,37 @@ class MujocoBatchedSim(HostBookkeeping):
         return ~ok
 
     def _prop_states(self, worlds: np.ndarray, pose, vel) -> tuple[np.ndarray, np.ndarray]:
-        """qpos (k, 7 nfree) and qvel (k, 6 nfree) of the free props of `worlds`: the given poses
-        (k, nfree, 7) and velocities (k, nfree, 6) in the slots their prop sets use (each set's rest
-        poses and zero velocity when not given), every unused slot parked at rest."""
-        k, n = len(worlds), self.props.nfree
+        """qpos (k, 7 nfree + nhinged) and qvel (k, 6 nfree + nhinged) of the moving props of
+        `worlds`: the given poses (k, nmoving, 7) and velocities (k, nmoving, 6) in the slots their
+        prop sets use (each set's rest poses and zero velocity when not given), every unused slot
+        parked at rest; a door's angle from its pose, its rate the angular velocity's z."""
+        k, n, nf = len(worlds), self.props.nmoving, self.props.nfree
         sets = self._params.props[worlds]
         rest = np.stack([self.props.rest_poses(int(i)) for i in sets]) if n else np.zeros((k, 0, 7))
         used = np.stack([self.props.used(int(i)) for i in sets]) if n else np.zeros((k, 0), dtype=bool)
         q = rest if pose is None else np.where(used[..., None], checked_array("prop_pose", pose, (k, n, 7)), rest)
         q[..., 3:] /= np.linalg.norm(q[..., 3:], axis=-1, keepdims=True)
         v = np.zeros((k, n, 6)) if vel is None else checked_array("prop_vel", vel, (k, n, 6)) * used[..., None]
-        return q.reshape(k, 7 * n), v.reshape(k, 6 * n)
+        angles = np.stack([self.props.door_angles(int(i), q[row, nf:]) for row, i in enumerate(sets)]) if k else np.zeros((0, n - nf))
+        return (np.concatenate([q[:, :nf].reshape(k, 7 * nf), angles], axis=1),
+                np.concatenate([v[:, :nf].reshape(k, 6 * nf), v[:, nf:, 5]], axis=1))
 
-    def _prop_outputs(self, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Free props' poses (N, nfree, 7) and velocities (N, nfree, 6) from full states."""
-        n, k = self.props.nfree, len(state)
-        return state[:, self._prop_qpos].reshape(k, n, 7).copy(), state[:, self._prop_qvel].reshape(k, n, 6).copy()
+    def _prop_outputs(self, state: np.ndarray, worlds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Moving props' poses (N, nmoving, 7) and velocities (N, nmoving, 6) of `worlds` from their
+        full states: the boxes', then the doors' hinge frames (angular velocity about z their rate)."""
+        nf, k = self.props.nfree, len(state)
+        pose = np.zeros((k, self.props.nmoving, 7))
+        vel = np.zeros((k, self.props.nmoving, 6))
+        pose[:, :nf] = state[:, self._prop_qpos].reshape(k, nf, 7)
+        vel[:, :nf] = state[:, self._prop_qvel].reshape(k, nf, 6)
+        if self.props.nhinged:
+            angles = state[:, self._hinge_qpos]
+            sets = self._params.props[worlds]
+            for i in np.unique(sets):
+                rows = sets == i
+                pose[rows, nf:] = self.props.door_poses(int(i), angles[rows])
+            vel[:, nf:, 5] = state[:, self._hinge_qvel]
+        return pose, vel
 
     def _hold(self, bad: np.ndarray, start: np.ndarray, out: SimStep) -> None:
         """Isolate diverged worlds: back to their state before the step, outputs of that state."""

@@ -119,8 +119,8 @@ def complete(coarse: Problem, cones: ContactCones | None, policy_for_node: Polic
         for i in range(int(round(node.dt / FRAME_DT))):
             u = np.clip(policy(i, x), -limit, limit)
             fine.calc(fine_data, x, u)
-            if cones is not None and node.contacts and not cones.holds(fine_data, node.contacts):
-                u = np.clip(cones.project(fine, fine_data, x, u, node.contacts, limit), -limit, limit)
+            if cones is not None and node.contacts and not cones.holds(fine_data, node.contacts, node.phase_index):
+                u = np.clip(cones.project(fine, fine_data, x, u, node.contacts, limit, node.phase_index), -limit, limit)
                 fine.calc(fine_data, x, u)
             frames.q[frame], frames.v[frame], frames.tau[frame] = x[:nq], x[nq:], u
             contact_wrenches(fine_data, coarse, node.contacts, frames.wrench[frame])
@@ -155,10 +155,12 @@ def rollout(coarse: Problem, solution: Solution, cones: ContactCones | None = No
     return complete(coarse, cones, policy_for_node)
 
 
-def _point_normal_frame(problem: Problem, name: str) -> np.ndarray:
-    """The rotation whose z axis is the (first) planned normal of point contact `name`."""
-    for phase in problem.phases:
-        for c in phase.contacts:
+def _point_normal_frame(problem: Problem, name: str, phase: int | None = None) -> np.ndarray:
+    """The rotation whose z axis is the planned normal of point contact `name` in phase `phase` (a
+    door's panel turns: each phase has its own), or its first one."""
+    phases = problem.phases if phase is None else [problem.phases[phase], *problem.phases]
+    for p in phases:
+        for c in p.contacts:
             if c.name == name:
                 return np.asarray(c.placement.rotation)
     return np.eye(3)
@@ -174,20 +176,25 @@ class ContactCones:
     """
 
     def __init__(self, problem: Problem, robot_feet: dict[str, tuple[float, float]], mu: float):
-        self.problem = problem
-        self.rows = {}
-        for name in problem.contact_names:
-            if problem.flat[name]:
-                length, width = robot_feet[name]
-                cone = crocoddyl.WrenchCone(np.eye(3), mu, np.array([length, width]), 4, True, 0.0)
-            else:  # a point contact's force is in world axes: the cone's normal is its placement's z
-                cone = crocoddyl.FrictionCone(_point_normal_frame(problem, name), mu, 4, True, 0.0)
-            self.rows[name] = (np.array(cone.A), np.array(cone.lb), np.array(cone.ub))
+        self.problem, self.robot_feet, self.mu = problem, robot_feet, mu
+        self._rows: dict[tuple[str, int | None], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
-    def _stack(self, contacts):
+    def rows(self, name: str, phase: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The cone's rows (A, lb, ub) of contact `name` in phase `phase` (built once)."""
+        key = (name, None if self.problem.flat[name] or phase is None else phase)
+        if key not in self._rows:
+            if self.problem.flat[name]:
+                length, width = self.robot_feet[name]
+                cone = crocoddyl.WrenchCone(np.eye(3), self.mu, np.array([length, width]), 4, True, 0.0)
+            else:  # a point contact's force is in world axes: the cone's normal is its placement's z
+                cone = crocoddyl.FrictionCone(_point_normal_frame(self.problem, name, key[1]), self.mu, 4, True, 0.0)
+            self._rows[key] = (np.array(cone.A), np.array(cone.lb), np.array(cone.ub))
+        return self._rows[key]
+
+    def _stack(self, contacts, phase: int | None = None):
         blocks, lower, upper = [], [], []
         for name in contacts:
-            A, lb, ub = self.rows[name]
+            A, lb, ub = self.rows(name, phase)
             blocks.append(A)
             lower.append(lb)
             upper.append(ub)
@@ -204,14 +211,14 @@ class ContactCones:
         forces = data.differential.multibody.contacts.contacts
         return np.concatenate([forces[n].f.vector[: forces[n].Jc.shape[0]] for n in contacts])
 
-    def holds(self, data, contacts) -> bool:
-        A, lb, ub = self._stack(contacts)
+    def holds(self, data, contacts, phase: int | None = None) -> bool:
+        A, lb, ub = self._stack(contacts, phase)
         r = A @ self._forces(data, contacts)
         return bool(np.all(r <= ub + 1e-9) and np.all(r >= lb - 1e-9))
 
-    def project(self, model, data, x, u, contacts, limits) -> np.ndarray:
+    def project(self, model, data, x, u, contacts, limits, phase: int | None = None) -> np.ndarray:
         model.differential.calcDiff(data.differential, x, u)
-        A, lb, ub = self._stack(contacts)
+        A, lb, ub = self._stack(contacts, phase)
         f0 = self._forces(data, contacts)
         G = A @ data.differential.df_du  # cone rows per unit torque
         r0 = A @ f0
