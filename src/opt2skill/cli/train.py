@@ -51,6 +51,8 @@ def train(
                                  "extra units learn a correction; rl.residual)."),
     pace: str = typer.Option("clock", "--pace", help="--init distill: the PPO stage's curriculum advances with the "
                              "steps (clock) or only while the worlds rarely fail (adaptive; rl.pace)."),
+    sampling: str = typer.Option("uniform", "--sampling", help="Where episodes start: uniform (any reference, any "
+                                 "frame) or adaptive (more often where worlds fail; envs.start_sampling)."),
     kp_scale: float = typer.Option(1.0, "--kp-scale", help="Servo stiffness for this policy: the robot's Kp times "
                                    "this, in [0.05, 2] (training, evaluation, export)."),
     held_out: Path = typer.Option(None, "--held-out", help="References of another seed: every --judge-every "
@@ -75,7 +77,7 @@ def train(
 
     request = TrainRequest(dataset=dataset, out=out, steps=steps, num_envs=num_envs, history=history,
                            ablation=ablation, seed=seed, threads=threads, checkpoint_every=checkpoint_every,
-                           command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out, kp_scale=kp_scale,
+                           command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out, kp_scale=kp_scale, sampling=sampling,
                            judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed), device=device)
     request.check()
     _terminate_as_interrupt()

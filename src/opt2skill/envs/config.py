@@ -19,6 +19,7 @@ ABLATIONS = {  # name -> (reference contact forces, reference joint torques): ob
     "pos_f_t": (True, True),
 }
 KERNELS = ("exp_sq", "exp_l1", "sq")
+SAMPLINGS = ("uniform", "adaptive")  # EpisodeConfig.sampling
 
 
 def _require(condition: bool, message: str) -> None:
@@ -235,12 +236,23 @@ class CurriculumConfig:
 @dataclass(frozen=True)
 class EpisodeConfig:
     """How episodes start: a trajectory uniformly at random, a start frame uniformly in [0, T - 2]
-    (or 0 with probability `start_at_zero`)."""
+    (or 0 with probability `start_at_zero`); or, with `sampling="adaptive"`, weighted toward the
+    parts of the references where worlds fail (envs/start_sampling.py)."""
 
     start_at_zero: float = 0.0
+    sampling: str = "uniform"  # or "adaptive"
+    bin_seconds: float = 0.5  # adaptive: length of a start bin
+    lookback_seconds: float = 1.0  # adaptive: a failure also weights the bins this far before it
+    uniform_share: float = 0.3  # adaptive: share of starts still drawn uniformly
+    half_life: float = 500.0  # adaptive: finished episodes over which the failure scores halve
 
     def check(self) -> None:
         _require(0 <= self.start_at_zero <= 1, f"start_at_zero must be a probability, got {self.start_at_zero}")
+        _require(self.sampling in SAMPLINGS, f"episode sampling must be one of {', '.join(SAMPLINGS)}, got '{self.sampling}'")
+        _require(self.bin_seconds > 0, f"episode bin_seconds must be > 0, got {self.bin_seconds}")
+        _require(self.lookback_seconds >= 0, f"episode lookback_seconds must be >= 0, got {self.lookback_seconds}")
+        _require(0 <= self.uniform_share <= 1, f"episode uniform_share must be in [0, 1], got {self.uniform_share}")
+        _require(self.half_life > 0, f"episode half_life must be > 0 episodes, got {self.half_life}")
 
 
 @dataclass(frozen=True)
@@ -284,8 +296,10 @@ def check_reference_inputs(ablation: str, has_dynamics: bool, source: str = "to"
         )
 
 
-def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10, kp_scale: float = 1.0) -> TrackingConfig:
-    """The defaults for a dataset of `task`, with an ablation, a history length and a servo stiffness applied."""
+def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10, kp_scale: float = 1.0,
+                    sampling: str = "uniform") -> TrackingConfig:
+    """The defaults for a dataset of `task`, with an ablation, a history length, a servo stiffness and
+    the episodes' start sampling applied."""
     if ablation not in ABLATIONS:
         raise ConfigError(f"ablation must be one of {', '.join(ABLATIONS)}, got '{ablation}'")
     force, torque = ABLATIONS[ablation]
@@ -299,7 +313,7 @@ def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10
     )
     observations = ObservationConfig(history=history, reference_force=force, reference_torque=torque)
     config = TrackingConfig(task=task, ablation=ablation, observations=observations, rewards=rewards,
-                            actions=ActionConfig(kp_scale=kp_scale))
+                            actions=ActionConfig(kp_scale=kp_scale), episodes=EpisodeConfig(sampling=sampling))
     config.check()
     return config
 
@@ -330,5 +344,5 @@ def evaluation_config(config: TrackingConfig, randomize: bool = False, noise: bo
                                           **({} if randomize else nominal_ranges(randomization))),
         observations=config.observations if noise else dataclasses.replace(
             config.observations, noise=NoiseConfig(0.0, 0.0, 0.0, 0.0, 0.0)),
-        episodes=dataclasses.replace(config.episodes, start_at_zero=1.0),
+        episodes=dataclasses.replace(config.episodes, start_at_zero=1.0, sampling="uniform"),
     )

@@ -21,6 +21,7 @@ from opt2skill.envs.measure import Measurement, Readings, measure
 from opt2skill.envs.observations import ObservationLayout, fill, layout
 from opt2skill.envs.reference import ReferenceBank
 from opt2skill.envs.rewards import StepContext, penalty_values, reward_terms, task_errors
+from opt2skill.envs.start_sampling import StartSampler
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.model.sensors import SensorLayout, contact_wrenches
@@ -117,6 +118,7 @@ class TrackingEnv:
         self._q_hist = StridedHistory(n, nu, obs.history, obs.stride)
         self._q_hist_noisy = StridedHistory(n, nu, obs.history, obs.stride)
         self._push_countdown = np.zeros(n, dtype=np.int64)  # policy steps until each world's next push
+        self.starts = StartSampler(config.episodes, bank.length, FRAME_DT)  # where new episodes begin
         self.set_progress(0.0)
         self.m: Measurement | None = None
         self.state: SimStep | None = None  # the latest simulator outputs (privileged state, e.g. qpos, qvel)
@@ -171,12 +173,15 @@ class TrackingEnv:
         if k == 0:
             return
         bank = self.bank
-        traj = self.rng.integers(0, bank.num_trajectories, k) if trajectories is None else np.asarray(trajectories)
-        if frames is None:
-            frames = self.rng.integers(0, bank.length[traj] - 1)  # [0, T - 2]: at least one step to go
-            p0 = self.config.episodes.start_at_zero
-            if p0 > 0:
-                frames = np.where(self.rng.random(k) < p0, 0, frames)
+        if trajectories is None and frames is None:
+            traj, frames = self.starts.sample(self.rng, k)
+        else:
+            traj = self.rng.integers(0, bank.num_trajectories, k) if trajectories is None else np.asarray(trajectories)
+            if frames is None:
+                frames = self.rng.integers(0, bank.length[traj] - 1)  # [0, T - 2]: at least one step to go
+                p0 = self.config.episodes.start_at_zero
+                if p0 > 0:
+                    frames = np.where(self.rng.random(k) < p0, 0, frames)
         frames = np.asarray(frames, dtype=np.int64)
         if np.any(traj < 0) or np.any(traj >= bank.num_trajectories) or np.any(frames < 0) or np.any(
                 frames > bank.length[traj] - 2):
@@ -213,6 +218,13 @@ class TrackingEnv:
         depth = self._q_hist_noisy.depth
         self._q_hist_noisy.reset(worlds, m.joint_pos[:, None, :] + sigma * self.rng.standard_normal((k, depth, self.nu)))
         self._kp, self._kd, self._limit = self.sim.gains()
+
+    def fail_worlds(self, worlds: np.ndarray) -> None:
+        """End these worlds' episodes as failures where they stand (e.g. a teacher lost them: the
+        start sampling learns where) and start new ones."""
+        worlds = np.asarray(worlds, dtype=np.int64)
+        self.starts.record(self.traj[worlds], self.frame[worlds], np.ones(len(worlds), dtype=bool))
+        self.reset_worlds(worlds)
 
     def step(self, actions: np.ndarray) -> StepResult:
         cfg = self.config
@@ -255,6 +267,7 @@ class TrackingEnv:
             episodes = Episodes(self.steps[worlds].copy(), self._ep_reward[worlds].copy(),
                                 {t: self._ep_terms[worlds, i].copy() for i, t in enumerate(self._terms)},
                                 cause[worlds].copy(), worlds, out.rows(worlds))
+            self.starts.record(self.traj[worlds], self.frame[worlds], ~truncated[worlds])
             self.reset_worlds(worlds)
         actor, critic = self.observations()
         return StepResult(actor, critic, reward, done & ~truncated, truncated, terms, episodes, int(unstable.sum()),

@@ -126,7 +126,7 @@ class Distiller:
             stray = np.flatnonzero(~valid)
             if len(stray):  # left the expert's region: nothing to learn there, start these worlds afresh
                 lost += len(stray)
-                env.reset_worlds(stray)
+                env.fail_worlds(stray)  # a failure of the actor's (or the expert's): adaptive starts weigh it
                 self._obs = env.observations()[0]
                 expert_action, valid = self.expert.act()
             obs = self._obs
@@ -147,7 +147,8 @@ class Distiller:
         self.actor.update_normalization(TensorDict({"actor": seen}, batch_size=[len(seen)]))
         figures = self.stats.summary(env.sim.policy_dt)
         figures.update({"distill/expert_share": share, "distill/labelled_fraction": labelled / self.batch,
-                        "distill/expert_lost_worlds": float(lost), "distill/buffer_samples": float(self.buffer.size)})
+                        "distill/expert_lost_worlds": float(lost), "distill/buffer_samples": float(self.buffer.size),
+                        "episode/start_concentration": env.starts.concentration()})
         return figures
 
     def learn(self) -> dict[str, float]:
@@ -229,6 +230,7 @@ class Distiller:
             "torch_rng": self.generator.get_state(),
             "rng": self.rng.bit_generator.state,
             "env_rng": self.env.rng.bit_generator.state,
+            "starts": self.env.starts.state(),
             "dims": {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu},
             "identity": self.identity(),
         }
@@ -250,6 +252,8 @@ class Distiller:
         self.generator.set_state(data["torch_rng"])
         self.rng.bit_generator.state = data["rng"]
         self.env.rng.bit_generator.state = data["env_rng"]
+        if "starts" in data:
+            self.env.starts.restore(data["starts"])
         self.env.reset()
         self._set_noise()
         self._obs, _ = self.env.observations()

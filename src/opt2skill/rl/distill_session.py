@@ -190,7 +190,8 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     check_output_dir(request.out)
     dataset, robot = open_dataset(request.dataset)
     _check_gains(dataset)
-    task = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale)
+    task = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
+                           request.sampling)
     judge = held_out_judge(request, dataset, robot, task)  # both stages judged under the task's Table II and noise
     config = finetune_tracking_config(task, distill)  # the PPO stage's, recorded as the run's
     ppo = distill.finetune_ppo()

@@ -14,7 +14,7 @@ import torch
 
 from opt2skill.data.reader import Dataset
 from opt2skill.envs import ABLATIONS, ReferenceBank, TrackingEnv, evaluation_config, tracking_config
-from opt2skill.envs.config import TrackingConfig, check_reference_inputs
+from opt2skill.envs.config import SAMPLINGS, TrackingConfig, check_reference_inputs
 from opt2skill.envs.evaluation import TrackedMotion, track
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.eval.references import check_contacts
@@ -49,6 +49,7 @@ class TrainRequest:
     held_out: Path | None = None  # references of another seed: judge the actor on them, keep the best (rl.best)
     judge: JudgeConfig = JudgeConfig()
     device: str = "cpu"  # physics backend: cpu (C MuJoCo) or cuda (MuJoCo Warp), opt2skill.sim.devices
+    sampling: str = "uniform"  # where episodes start: uniform or adaptive (envs.start_sampling)
 
     def check(self) -> None:
         if not (isinstance(self.steps, int) and self.steps >= 1):
@@ -68,6 +69,8 @@ class TrainRequest:
         if self.checkpoint_every < 1:
             raise ConfigError(f"--checkpoint-every must be >= 1 iteration, got {self.checkpoint_every}")
         self.judge.check()
+        if self.sampling not in SAMPLINGS:
+            raise ConfigError(f"--sampling must be one of {', '.join(SAMPLINGS)}, got '{self.sampling}'")
         check_device(self.device)  # e.g. --device cuda without a GPU: one error before anything is written
 
 
@@ -136,7 +139,8 @@ def train(request: TrainRequest, progress: bool = True, announce: Callable[[str]
     if len(dataset):  # kinematic references (IK, human) and force/torque inputs: refused before any work
         first = dataset.meta(0)
         check_reference_inputs(request.ablation, first.has_dynamics, first.source)
-    config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale)
+    config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
+                             request.sampling)
     judge = held_out_judge(request, dataset, robot, config)  # its references are read before anything is written
     ppo = PPOConfig()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,

@@ -84,6 +84,7 @@ class Trainer:
             "progress": self.env.progress,
             "torch_rng": torch.get_rng_state(),
             "env_rng": self.env.rng.bit_generator.state,
+            "starts": self.env.starts.state(),
             "dims": {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu},
             "identity": self.identity(),
             **({"anchor": self.anchor.state()} if self.anchor is not None else {}),
@@ -114,6 +115,8 @@ class Trainer:
         if self.pace is not None and "pace" in data:
             self.pace.restore(data["pace"])
         self.env.rng.bit_generator.state = data["env_rng"]
+        if "starts" in data:
+            self.env.starts.restore(data["starts"])
         self.env.set_progress(data["progress"])
         self.env.reset()
         self.venv.refresh()
@@ -186,6 +189,7 @@ class Trainer:
             "curriculum/noise_factor": self.env.noise_factor,
             "curriculum/penalty_factor": self.env.penalty_factor,
             "curriculum/randomization_width": self.env.randomization_width,
+            "episode/start_concentration": self.env.starts.concentration(),
             "perf/env_steps_per_s": self.batch / (collected - start),
             "perf/learner_samples_per_s": self.batch * self.ppo.num_learning_epochs / (learned - collected),
             "perf/iteration_s": learned - start,
