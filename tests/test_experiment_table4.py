@@ -32,7 +32,7 @@ from opt2skill.experiment.table4_settings import Table4Settings
 WIPES = Path(__file__).parent / "data" / "table4"
 TINY = ["--setting", "quick", "--n-train", "1", "--n-test", "1", "--n-transfer", "1", "--forces", "15",
         "--desk-height", "0.95:0.95", "--transfer-desks", "0.9", "--ablations", "pos,pos_f_t", "--train-steps", "200",
-        "--num-envs", "4", "--workers", "1", "--quiet"]
+        "--distill-steps", "200", "--num-envs", "4", "--workers", "1", "--quiet"]
 
 
 def table4_settings(**overrides):
@@ -55,6 +55,9 @@ def test_quick_setting_writes_table_iv_fig4_and_the_transfer_and_resumes(tmp_pat
     runs = {k[len("train-"):]: s["result"] for k, s in steps.items() if k.startswith("train-")}
     assert set(runs) == {"pos", "pos_f_t"} and len({r["env_steps"] for r in runs.values()}) == 1
     assert all(r["ablation"] == k for k, r in runs.items())
+    # Each policy distilled the expert from the training set's gains (`--distill-steps`), then PPO.
+    assert all(r["distill_env_steps"] >= 200 for r in runs.values())
+    assert all((Path(r["run"]) / "distill" / "checkpoints").is_dir() for r in runs.values())
     table = json.loads((out / "table4.json").read_text())
     for metric in ("force_error", "right_hand_error"):
         for ablation in ("pos", "pos_f_t"):
@@ -123,6 +126,8 @@ def test_bad_table4_input_is_one_clear_error(tmp_path):
         table4_settings(desk_height=(0.9, 2.0))
     with pytest.raises(ConfigError, match="--n-train, --n-test and --n-transfer must be >= 1"):
         table4_settings(n_test=0)
+    with pytest.raises(ConfigError, match=r"--distill-steps must be >= 0 \(0: PPO from scratch\), got -5"):
+        table4_settings(distill_steps=-5)
     claim_folder(tmp_path / "t3", resolve("quick"))
     with pytest.raises(ConfigError, match="holds another experiment .*experiment: 'table3' there, 'table4' now"):
         claim_folder(tmp_path / "t3", table4_settings())

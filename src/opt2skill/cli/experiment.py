@@ -97,6 +97,9 @@ def table4(
     desk_height: str = typer.Option(None, "--desk-height", help="Desk top range lo:hi of every reference, m."),
     ablations: str = typer.Option(None, help="Policies, e.g. pos,pos_f,pos_t,pos_f_t (pos_f_t required)."),
     train_steps: int = typer.Option(None, "--train-steps", help="Environment steps per policy (the same for all)."),
+    distill_steps: int = typer.Option(None, "--distill-steps", help="Environment steps distilling the optimizer's "
+                                      "feedback expert into each policy before its PPO steps (0: PPO from scratch, "
+                                      "the paper's way; train --init distill)."),
     num_envs: int = typer.Option(None, "--num-envs", help="Simulated worlds while training."),
     history: int = typer.Option(None, help="Observation history length of every policy."),
     transfer_force: float = typer.Option(None, "--transfer-force", help="Force of the transfer test's reference, N."),
@@ -118,7 +121,8 @@ def table4(
     names = tuple(a.strip() for a in ablations.split(",") if a.strip()) if ablations is not None else None
     settings = resolve(setting, dict(
         n_train=n_train, n_test=n_test, forces=_numbers(forces, "--forces"), train_force=_range(train_force, "--train-force"),
-        desk_height=_range(desk_height, "--desk-height"), ablations=names, train_steps=train_steps, num_envs=num_envs,
+        desk_height=_range(desk_height, "--desk-height"), ablations=names, train_steps=train_steps,
+        distill_steps=distill_steps, num_envs=num_envs,
         history=history, transfer_force=transfer_force, transfer_height=transfer_height,
         transfer_desks=_numbers(transfer_desks, "--transfer-desks"), n_transfer=n_transfer, timing=_timing(timing),
         seed=seed, device=device, workers=workers), kind=Table4Settings)

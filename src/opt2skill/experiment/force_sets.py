@@ -68,5 +68,7 @@ def build(wipe_set: WipeSet, n: int, s: Table4Settings, out: Path, progress: boo
     folder = dataset_dir(out, wipe_set)
     summary = generate(GenerateRequest(task=TASK, n=n, seed=wipe_set.seed, out=folder, workers=s.workers,
                                        ranges={"force": wipe_set.force, "desk_height": wipe_set.desk},
-                                       task_config=s.task_config(), command=COMMAND), progress=progress)
+                                       task_config=s.task_config(), command=COMMAND,
+                                       keep_gains=s.distill_steps > 0 and wipe_set == roles(s)["train"][0]),
+                       progress=progress)  # the expert to distil lives in the training set's gains
     return dataset_result(summary, folder, wipe_set.name)

@@ -59,18 +59,26 @@ def run_dir(out: Path, key: str) -> Path:
 
 def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: str, history: int, command: str,
                  progress: bool) -> dict[str, Any]:
-    """PPO from scratch on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed,
-    device), into OUT/runs/KEY; resumes from the run's newest checkpoint."""
-    from opt2skill.rl import session
+    """A policy on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed, device and,
+    where the settings have it, distill_steps), into OUT/runs/KEY; resumes from the run's newest
+    checkpoint. PPO from scratch, or after distilling the optimizer's feedback expert when
+    `s.distill_steps` > 0 (rl.distill_session)."""
+    from opt2skill.rl import distill_session, session
 
     request = session.TrainRequest(dataset=Path(data["dataset"]), out=run_dir(out, key), steps=s.train_steps,
                                    num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=command,
                                    device=s.device)
+    announce = lambda line: console.print(line, highlight=False)  # noqa: E731
+    distill_steps = getattr(s, "distill_steps", 0)
     start = time.perf_counter()
-    result = session.train(request, progress=progress, announce=lambda line: console.print(line, highlight=False))
+    if distill_steps > 0:
+        result = distill_session.train(request, distill_steps, progress=progress, announce=announce)
+    else:
+        result = session.train(request, progress=progress, announce=announce)
     elapsed = time.perf_counter() - start
     return {"run": str(request.out), "ablation": ablation, "history": history, "iteration": result["iteration"],
-            "env_steps": result["env_steps"], "train_s": elapsed, "references": data["counts"]["accepted"]}
+            "env_steps": result["env_steps"], "train_s": elapsed, "references": data["counts"]["accepted"],
+            "distill_env_steps": result.get("distill_env_steps", 0)}
 
 
 def write_provenance(s: Settings, out: Path, steps: Steps, elapsed: float) -> None:

@@ -136,7 +136,9 @@ def _data_notes(s: Table4Settings, steps: Steps) -> list[str]:
             reason = ((steps.record(f"data-{name}") or {}).get("result") or {}).get("reason", "not run")
             notes.append(f"references {name}: unavailable: {reason}")
     timing = f"the wipe's phases shortened to {s.timing} s" if s.timing else "the wipe task's own timing"
-    notes.append(f"same pipeline for every policy: PPO from scratch on the training set, {s.train_steps:,} environment "
+    first = (f"{s.distill_steps:,} environment steps distilling the optimizer's feedback expert, then PPO for"
+             if s.distill_steps else "PPO from scratch for")
+    notes.append(f"same pipeline for every policy on the training set: {first} {s.train_steps:,} environment "
                  f"steps on {s.num_envs} worlds, seed {s.seed}, history {s.history}; only the reference force / torque "
                  f"observations and rewards differ; {timing}")
     return notes

@@ -12,6 +12,7 @@ from opt2skill.experiment.table4_settings import TASK, Table4Settings
 SOLVE_PER_MOTION_SECOND = 8.5  # s of wipe solve per s of motion (96 s for the 11.4-s wipe, load 4-5)
 VALIDATION = 5.0  # s per reference (the expert's force replay included)
 TRAIN_STEPS_PER_S = 1300.0  # environment steps/s end to end, 128 worlds, quiet 2-core CPU (docs/experiments.md)
+DISTILL_STEPS_PER_S = 1200.0  # environment steps/s of distillation, 64 worlds, one core (docs/eval.md, heavy box)
 TRAIN_SETUP = 20.0  # s per policy: environment, references, checkpoints (29 to 69 s for 3,072 steps at load 6-7)
 EVAL_STEP = 0.014  # s per policy step of one evaluation's batch of worlds (14-s walks, 20 worlds: 40 s quiet)
 
@@ -31,7 +32,7 @@ def estimate(s: Table4Settings, references: int) -> dict[str, float]:
     seconds = motion_seconds(s)
     frames = seconds * 200
     generate = references * (SOLVE_PER_MOTION_SECOND * seconds + VALIDATION) / min(workers, max(references, 1))
-    train = len(s.ablations) * (TRAIN_SETUP + s.train_steps / TRAIN_STEPS_PER_S)
+    train = len(s.ablations) * (TRAIN_SETUP + s.train_steps / TRAIN_STEPS_PER_S + s.distill_steps / DISTILL_STEPS_PER_S)
     evaluate = (len(s.ablations) * len(s.forces) + len(s.transfer_desks)) * frames * EVAL_STEP  # one batch each
     return {"motion_s": seconds, "datasets_h": generate / 3600, "training_h": train / 3600, "evaluation_h": evaluate / 3600}
 
@@ -41,9 +42,14 @@ def describe(s: Table4Settings, references: int) -> str:
     total = e["datasets_h"] + e["training_h"] + e["evaluation_h"]
     return (f"expected on a 2-core CPU (rates measured on this project's; a machine loaded to 6-7 took twice as "
             f"long): {references} wipes of {e['motion_s']:.1f} s, {_time(e['datasets_h'])}; "
-            f"{len(s.ablations)} policies x {s.train_steps:,} environment steps, {_time(e['training_h'])}; "
+            f"{len(s.ablations)} policies x {_budget(s)}, {_time(e['training_h'])}; "
             f"evaluation {_time(e['evaluation_h'])}; "
             f"in all {_time(total)} (rerun the same command to resume)")
+
+
+def _budget(s: Table4Settings) -> str:
+    ppo = f"{s.train_steps:,} environment steps"
+    return f"{s.distill_steps:,} distilled + {ppo} of PPO" if s.distill_steps else ppo
 
 
 def _time(hours: float) -> str:

@@ -22,6 +22,10 @@ class Table4Settings(Settings):
     n_test: int  # held-out references per force level (another seed)
     train_steps: int  # environment steps per policy, all worlds together (the same for every ablation)
     num_envs: int
+    # Environment steps of distilling the optimizer's feedback expert into each policy before its PPO
+    # steps (`train --init distill`, docs/distill.md; the training references keep their gains); 0: PPO
+    # from scratch, the paper's way.
+    distill_steps: int = 0
     forces: tuple[float, ...] = (0.0, 5.0, 10.0, 15.0, 20.0, 25.0)  # N, the evaluation levels (Table IV's)
     train_force: tuple[float, float] = (0.0, 20.0)  # N, the training references' range (the paper's)
     desk_height: tuple[float, float] = (0.85, 0.95)  # m, every reference's desk top range (the paper's)
@@ -41,6 +45,8 @@ class Table4Settings(Settings):
         if self.n_train < 1 or self.n_test < 1 or self.n_transfer < 1:
             problems.append(f"--n-train, --n-test and --n-transfer must be >= 1, got {self.n_train}, {self.n_test}, "
                             f"{self.n_transfer}")
+        if self.distill_steps < 0:
+            problems.append(f"--distill-steps must be >= 0 (0: PPO from scratch), got {self.distill_steps}")
         if self.train_steps < 1 or not 1 <= self.num_envs <= 4096:
             problems.append(f"--train-steps must be >= 1 and --num-envs in [1, 4096], got {self.train_steps}, {self.num_envs}")
         if not self.forces or len(set(self.forces)) != len(self.forces):
