@@ -54,6 +54,19 @@ def test_configs_round_trip_through_json_and_runs_refuse_another_config(tmp_path
         config_from_dict(PPOConfig, {"hidden": [1]})
 
 
+def test_runs_made_before_adaptive_starts_still_resume_and_an_adaptive_run_is_another_config(tmp_path):
+    spec = RunSpec(dataset="/d", dataset_identity={"task": "walk"}, trajectories=3, robot="digit", robot_hash="abc",
+                   tracking=tracking_config("walk"), ppo=PPOConfig(), num_envs=8, seed=1)
+    assert set(spec.to_dict()["tracking"]["episodes"]) == {"start_at_zero"}  # what runs before them wrote
+    run = tmp_path / "run"
+    open_run(run, spec, {"command": "a"})
+    assert open_run(run, spec, {"command": "b"}) is True
+    adaptive = dataclasses.replace(spec, tracking=tracking_config("walk", sampling="adaptive"))
+    assert RunSpec.from_dict(adaptive.to_dict()) == adaptive
+    with pytest.raises(ConfigError, match=r"tracking.episodes.sampling: - -> adaptive"):
+        open_run(run, adaptive, {})
+
+
 def test_checkpoints_are_atomic_keep_the_newest_and_restore_the_trainer(tmp_path):
     traj, _ = recorded_reference(steps=30)
     env = make_env([traj], num_envs=4)

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from opt2skill.data.atomic import dumps, write_json
-from opt2skill.envs.config import TrackingConfig
+from opt2skill.envs.config import EpisodeConfig, TrackingConfig
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.folder_lock import LOCK_FILE
 from opt2skill.rl.config import PPOConfig
@@ -30,6 +30,11 @@ FORMAT = "opt2skill-run"
 FORMAT_VERSION = 1
 RUN_FILE = "run.json"
 PROGRESS_FILE = "progress.jsonl"
+
+
+# Episode settings added after runs existed (adaptive starts); left out of run.json at their defaults,
+# which reproduce the earlier behaviour, so those runs still resume.
+LATER_EPISODE_KEYS = ("sampling", "bin_seconds", "lookback_seconds", "uniform_share", "half_life")
 
 
 @dataclass(frozen=True)
@@ -53,6 +58,10 @@ class RunSpec:
         data = json.loads(dumps(dataclasses.asdict(self)))
         if data["contacts"] is None:
             del data["contacts"]
+        episodes, default = data["tracking"]["episodes"], dataclasses.asdict(EpisodeConfig())
+        for key in LATER_EPISODE_KEYS:  # at their defaults they are what runs before them did: leave them out
+            if episodes.get(key) == default[key]:
+                del episodes[key]
         return data
 
     def contact_names(self, robot) -> tuple[str, ...]:
