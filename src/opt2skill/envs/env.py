@@ -178,10 +178,7 @@ class TrackingEnv:
         else:
             traj = self.rng.integers(0, bank.num_trajectories, k) if trajectories is None else np.asarray(trajectories)
             if frames is None:
-                frames = self.rng.integers(0, bank.length[traj] - 1)  # [0, T - 2]: at least one step to go
-                p0 = self.config.episodes.start_at_zero
-                if p0 > 0:
-                    frames = np.where(self.rng.random(k) < p0, 0, frames)
+                frames = self.starts.frames(self.rng, traj)
         frames = np.asarray(frames, dtype=np.int64)
         if np.any(traj < 0) or np.any(traj >= bank.num_trajectories) or np.any(frames < 0) or np.any(
                 frames > bank.length[traj] - 2):

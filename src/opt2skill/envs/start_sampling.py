@@ -41,22 +41,29 @@ class StartSampler:
     def num_bins(self) -> int:
         return len(self.score)
 
+    def frames(self, rng: np.random.Generator, traj: np.ndarray) -> np.ndarray:
+        """Uniform start frames on the given references: [0, T - 2] (at least one step to go), or 0 with
+        probability `start_at_zero`."""
+        return self._at_zero(rng, rng.integers(0, self.lengths[traj] - 1))
+
     def sample(self, rng: np.random.Generator, k: int) -> tuple[np.ndarray, np.ndarray]:
         """k start pairs (trajectory indices, start frames)."""
         traj = rng.integers(0, len(self.lengths), k)
-        frames = rng.integers(0, self.lengths[traj] - 1)  # [0, T - 2]
         total = self.score.sum()
-        if self.adaptive and total > 0:
-            weighted = rng.random(k) >= self.config.uniform_share
-            m = int(weighted.sum())
-            if m:
-                bins = rng.choice(self.num_bins, size=m, p=self.score / total)
-                traj[weighted] = self.bin_traj[bins]
-                frames[weighted] = rng.integers(self.bin_start[bins], self.bin_end[bins])
+        if not (self.adaptive and total > 0):
+            return traj, self.frames(rng, traj)
+        frames = rng.integers(0, self.lengths[traj] - 1)
+        weighted = rng.random(k) >= self.config.uniform_share
+        m = int(weighted.sum())
+        if m:
+            bins = rng.choice(self.num_bins, size=m, p=self.score / total)
+            traj[weighted] = self.bin_traj[bins]
+            frames[weighted] = rng.integers(self.bin_start[bins], self.bin_end[bins])
+        return traj, self._at_zero(rng, frames)
+
+    def _at_zero(self, rng: np.random.Generator, frames: np.ndarray) -> np.ndarray:
         p0 = self.config.start_at_zero
-        if p0 > 0:
-            frames = np.where(rng.random(k) < p0, 0, frames)
-        return traj, frames
+        return np.where(rng.random(len(frames)) < p0, 0, frames) if p0 > 0 else frames
 
     def record(self, traj: np.ndarray, frames: np.ndarray, failed: np.ndarray) -> None:
         """Episodes that ended on reference `traj` at frame `frames`; `failed`: not at the reference's end."""
