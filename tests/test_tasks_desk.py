@@ -119,12 +119,22 @@ def test_the_wiping_reference_presses_with_the_profile_and_balances(robot, wiped
     result = validate(robot, traj, task_errors=errors)
     assert result["reasons"] == [], {k: result["figures"][k] for k in result["reasons"]}
     assert errors["hand_off_surface"]["value"] < 3.0  # mm
-    # Table IV's metrics: zero on the reference itself; hands pressing 3 N less are 3 N off
+    # Table IV's metrics: zero on the reference itself; hands pressing 3 N less are 3 N off on the
+    # 5-ms frames, and as much on the 50-ms means but at the ends of the contacts
     assert all(v == 0.0 for v, _ in wipe_metrics(traj, traj).values())
-    lighter = traj.contact_wrench.copy()
-    for c in [list(traj.contact_names).index(h) for h in HANDS]:
+    hands = [list(traj.contact_names).index(h) for h in HANDS]
+    lighter, bouncing = traj.contact_wrench.copy(), traj.contact_wrench.copy()
+    for c in hands:
         lighter[traj.contact_active[:, c], c, 2] -= 3.0
-    assert wipe_metrics(traj, replace(traj, contact_wrench=lighter))["force_error"] == (pytest.approx(3.0), "N")
+    metrics = wipe_metrics(traj, replace(traj, contact_wrench=lighter))
+    assert metrics["force_error_raw"] == (pytest.approx(3.0), "N") and 2.5 < metrics["force_error"][0] <= 3.0
+    # a hand bouncing +-10 N from one frame to the next presses with the reference's force on average:
+    # 10 N off frame by frame, a sensor's 50-ms means hardly see it
+    for c in hands:
+        on = np.flatnonzero(traj.contact_active[:, c])
+        bouncing[on, c, 2] += np.where(on % 2 == 0, 10.0, -10.0)
+    metrics = wipe_metrics(traj, replace(traj, contact_wrench=bouncing))
+    assert metrics["force_error_raw"][0] == pytest.approx(10.0) and metrics["force_error"][0] < 1.5
 
 
 @pytest.mark.slow

@@ -15,9 +15,8 @@ import numpy as np  # noqa: E402
 
 from opt2skill.data.record import FRAME_DT, Trajectory  # noqa: E402
 from opt2skill.experiment.table4_settings import ABLATION_LABELS  # noqa: E402
-from opt2skill.tasks.wipe import HANDS  # noqa: E402
+from opt2skill.tasks.wipe import HANDS, sensor_mean  # noqa: E402
 
-SMOOTH = 0.05  # s: the plotted force is a 50-ms mean (the stiff hand-desk contact chatters at the physics rate)
 COLORS = {"pos": "tab:red", "pos_f": "tab:orange", "pos_t": "tab:blue", "pos_f_t": "tab:green"}
 
 
@@ -47,11 +46,6 @@ def load_profiles(path: Path) -> list[tuple[np.ndarray, np.ndarray]]:
         return [(f[f"reference_{k}"], f[f"tracked_{k}"]) for k in range(count)]
 
 
-def smooth(force: np.ndarray, window: float = SMOOTH) -> np.ndarray:
-    width = max(1, int(round(window / FRAME_DT)))
-    return np.convolve(force, np.ones(width) / width, mode="same")
-
-
 def plot_fig4(profiles: dict[float, dict[str, list[tuple[np.ndarray, np.ndarray]]]], path: Path, title: str) -> Path:
     """`profiles`: force level -> ablation -> [(reference, tracked) per reference] (an empty list:
     not available, named in the legend)."""
@@ -68,9 +62,10 @@ def plot_fig4(profiles: dict[float, dict[str, list[tuple[np.ndarray, np.ndarray]
                 continue
             for k, (reference, tracked) in enumerate(runs):
                 t = np.arange(len(tracked)) * FRAME_DT
-                ax.plot(t, smooth(tracked), color=COLORS.get(ablation), lw=0.9, alpha=0.8, label=label if k == 0 else None)
+                ax.plot(t, sensor_mean(tracked), color=COLORS.get(ablation), lw=0.9, alpha=0.8, label=label if k == 0 else None)
                 if not drawn_reference:
-                    ax.plot(np.arange(len(reference)) * FRAME_DT, reference, "k--", lw=1.0, label="reference")
+                    ax.plot(np.arange(len(reference)) * FRAME_DT, reference, "k--", lw=1.4, label="reference",
+                            zorder=10)  # over the tracked curves, which would hide it
                     drawn_reference = True
         ax.set(title=f"({'abcdefghijkl'[levels.index(level)]}) {level:g} N reference", xlabel="time (s)",
                ylabel="normal force (N)")

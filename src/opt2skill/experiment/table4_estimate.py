@@ -1,7 +1,6 @@
 """What a table4 run is expected to cost on a 2-core CPU, from the per-item rates measured here
-(docs/trajopt.md, docs/experiments.md), printed before it starts: the full setting is about 38 h,
-the quick one about 18 min (measured: 37 min at load 5-7).
-Training's rate is table3's on walks (128 worlds); the wipe's was not measured at that scale."""
+(docs/experiments.md), printed before it starts: the full setting is about 21 h. PPO's rate is
+table3's on walks (128 worlds); the wipe's was not measured at that scale."""
 
 from __future__ import annotations
 
@@ -9,10 +8,12 @@ import os
 
 from opt2skill.experiment.table4_settings import TASK, Table4Settings
 
-SOLVE_PER_MOTION_SECOND = 8.5  # s of wipe solve per s of motion (96 s for the 11.4-s wipe, load 4-5)
-VALIDATION = 5.0  # s per reference (the expert's force replay included)
+# Measured 2026-12-02 on 180 wipes of 11.4 s, 2 workers on the 2 cores (load 2): solve median 18.8 s,
+# validation 1.0 s. The same solves took 96 s and 5 s when three other jobs shared the machine.
+SOLVE_PER_MOTION_SECOND = 1.65  # s of wipe solve per s of motion
+VALIDATION = 1.0  # s per reference (the expert's force replay included)
 TRAIN_STEPS_PER_S = 1300.0  # environment steps/s end to end, 128 worlds, quiet 2-core CPU (docs/experiments.md)
-DISTILL_STEPS_PER_S = 1200.0  # environment steps/s of distillation, 64 worlds, one core (docs/eval.md, heavy box)
+DISTILL_STEPS_PER_S = 400.0  # environment steps/s distilling wipes, 64 worlds, two runs on the two cores (2026-12-02)
 TRAIN_SETUP = 20.0  # s per policy: environment, references, checkpoints (29 to 69 s for 3,072 steps at load 6-7)
 EVAL_STEP = 0.014  # s per policy step of one evaluation's batch of worlds (14-s walks, 20 worlds: 40 s quiet)
 
