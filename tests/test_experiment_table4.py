@@ -32,7 +32,7 @@ from opt2skill.experiment.table4_settings import Table4Settings
 WIPES = Path(__file__).parent / "data" / "table4"
 TINY = ["--setting", "quick", "--n-train", "1", "--n-test", "1", "--n-transfer", "1", "--forces", "15",
         "--desk-height", "0.95:0.95", "--transfer-desks", "0.9", "--ablations", "pos,pos_f_t", "--train-steps", "200",
-        "--distill-steps", "200", "--num-envs", "4", "--workers", "1", "--quiet"]
+        "--distill-steps", "200", "--num-envs", "4", "--workers", "2", "--quiet"]
 
 
 def table4_settings(**overrides):
@@ -58,6 +58,8 @@ def test_quick_setting_writes_table_iv_fig4_and_the_transfer_and_resumes(tmp_pat
     # Each policy distilled the expert from the training set's gains (`--distill-steps`), then PPO.
     assert all(r["distill_env_steps"] >= 200 for r in runs.values())
     assert all((Path(r["run"]) / "distill" / "checkpoints").is_dir() for r in runs.values())
+    # --workers 2: both policies trained at once in their own processes, then each step recorded its finished run
+    assert "training 2 policies, 2 at a time" in r.stdout and r.stdout.count(": ready (") == 2, r.stdout[-3000:]
     table = json.loads((out / "table4.json").read_text())
     for metric in ("force_error", "force_error_raw", "right_hand_error"):
         for ablation in ("pos", "pos_f_t"):

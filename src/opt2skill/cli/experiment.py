@@ -110,7 +110,7 @@ def table4(
     timing: str = typer.Option(None, help="Wipe phase durations, s: 'task' (the task's own) or e.g. stroke=0.5,reach=0.5."),
     seed: int = typer.Option(None, help="Seed of the training references and training; held-out references use seed + 1."),
     device: str = typer.Option(None, help="Training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp on a GPU)."),
-    workers: int = typer.Option(None, min=0, help="Generation processes (0: every core)."),
+    workers: int = typer.Option(None, min=0, help="Generation processes, and policies trained at once on a CPU (0: every core)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Table IV (Pos, Pos+F, Pos+T, Pos+F+T at six force levels), Fig. 4 and the desk-height transfer, resumable."""

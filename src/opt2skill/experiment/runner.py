@@ -81,6 +81,35 @@ def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: st
             "distill_env_steps": result.get("distill_env_steps", 0)}
 
 
+def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, Any], str, int]], command: str,
+                           workers: int) -> None:
+    """Train the runs of `jobs` ((key, data step result, ablation, history), those not finished yet) up
+    to `workers` at a time, each in its own process, so that a machine's cores share the training.
+    The experiment's training steps then come after, one by one as before: each resumes its run,
+    finds it finished, and records it. A run that fails here is only announced: its step trains it
+    again and records what happens."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from multiprocessing import get_context
+
+    if workers < 2 or len(jobs) < 2:
+        return
+    workers = min(workers, len(jobs))
+    console.print(f"training {len(jobs)} policies, {workers} at a time in their own processes "
+                  f"({', '.join(key for key, *_ in jobs)}); each step below then records its run", highlight=False)
+    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+        started = time.perf_counter()
+        futures = {pool.submit(train_policy, s, out, key, data, ablation, history, command, False): key
+                   for key, data, ablation, history in jobs}
+        for future in as_completed(futures):
+            key = futures[future]
+            try:
+                future.result()
+                console.print(f"  {key}: ready ({time.perf_counter() - started:.0f} s)", highlight=False)
+            except Exception as exc:  # noqa: BLE001 - the step that follows retries it and records the failure
+                console.print(f"  {key}: failed in its process ({type(exc).__name__}: {exc}); its step retries it",
+                              highlight=False)
+
+
 def write_provenance(s: Settings, out: Path, steps: Steps, elapsed: float) -> None:
     """Versions, robot hash, settings and every step's status and time, rewritten on every run."""
     import importlib.metadata as md

@@ -19,7 +19,8 @@ from typing import Any
 from opt2skill.cli.console import console
 from opt2skill.experiment import force_sets
 from opt2skill.experiment.force_sets import level_key
-from opt2skill.experiment.runner import add_output, done, need, publish_table, run_experiment, train_policy
+from opt2skill.experiment.runner import (add_output, done, need, publish_table, run_experiment, train_policies_at_once,
+                                         train_policy)
 from opt2skill.experiment.steps import Steps
 from opt2skill.experiment.table4_settings import ABLATION_LABELS, BEST, Table4Settings
 
@@ -37,6 +38,7 @@ def run_table4(s: Table4Settings, out: Path, progress: bool = True) -> dict[str,
         for name, (wipe_set, n) in sets.items():
             steps.run(f"data-{name}", f"wiping references {name} ({n})",
                       lambda wipe_set=wipe_set, n=n: force_sets.build(wipe_set, n, s, out, progress))
+        _train_at_once(s, out, steps)
         for a in s.ablations:
             steps.run(f"train-{a}", f"train {ABLATION_LABELS[a]}",
                       lambda a=a: train_policy(s, out, a, data_result(s, steps, "train"), a, s.history, COMMAND, progress))
@@ -59,6 +61,18 @@ def data_result(s: Table4Settings, steps: Steps, role: str) -> dict[str, Any]:
     """The finished dataset step of a role ("train", "f<F>", "transfer")."""
     wipe_set, _ = force_sets.roles(s)[role]
     return need(steps, f"data-{wipe_set.name}", f"{role} references")
+
+
+def _train_at_once(s: Table4Settings, out: Path, steps: Steps) -> None:
+    """The policies not trained yet, `--workers` at a time on a CPU (0: every core; a GPU trains one
+    after another), before the training steps record them."""
+    import os
+
+    pending = [a for a in s.ablations if done(steps, f"train-{a}") is None]
+    if s.device != "cpu" or len(pending) < 2 or done(steps, f"data-{force_sets.roles(s)['train'][0].name}") is None:
+        return
+    data = data_result(s, steps, "train")
+    train_policies_at_once(s, out, [(a, data, a, s.history) for a in pending], COMMAND, s.workers or os.cpu_count() or 1)
 
 
 def eval_dir(out: Path, ablation: str, force: float) -> Path:

@@ -37,7 +37,7 @@ class Table4Settings(Settings):
     n_transfer: int = 10  # references of the transfer test (reach sampled)
     timing: dict[str, float] = field(default_factory=dict)  # s per wipe phase replacing the task's (tasks/wipe.py Timing)
     seed: int = 0  # training references' seed and training's; held-out ones use seed + 1
-    workers: int = 0  # generation processes (0: every core)
+    workers: int = 0  # generation processes, and policies trained at once on a CPU (0: every core)
     device: str = "cpu"
 
     def check(self) -> None:

@@ -237,7 +237,7 @@ def _ppo_stage(request: TrainRequest, dataset, robot, config, distill: DistillCo
         resumed["ppo"] = trainer.iteration
         if trainer.iteration >= trainer.iterations_for(request.steps):
             return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True,
-                    "resumed_from": resumed}
+                    "distill_env_steps": offset, "resumed_from": resumed}
         writer = _writer(Path(request.out) / "tb", offset + trainer.env_steps)
         logged = _EnvStepWriter(writer, lambda: offset + trainer.env_steps)
         schedule = Schedule(request.steps, request.checkpoint_every)
