@@ -19,7 +19,7 @@ from opt2skill.experiment.table import build_table, compare_reports
 
 TINY = ["--setting", "quick", "--n-train", "1", "--n-test", "1", "--duration", "5", "--train-steps", "200",
         "--num-envs", "4", "--histories", "0,10", "--stairs", "0.08", "--slopes", "10", "--sweep-trials", "1",
-        "--sweep-start", "0.3", "--workers", "1", "--quiet"]
+        "--sweep-start", "0.3", "--workers", "2", "--quiet"]
 
 
 @pytest.mark.slow
@@ -44,6 +44,8 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     runs = {k[len("train-"):]: s["result"] for k, s in steps.items() if k.startswith("train-")}
     assert len({r["env_steps"] for r in runs.values()}) == 1
     assert runs["ik"]["ablation"] == runs["human"]["ablation"] == "pos" and runs["hist0"]["history"] == 0
+    # --workers 2: the four policies trained two at a time in their own processes, then recorded by their steps
+    assert "training 4 policies, 2 at a time" in r.stdout and r.stdout.count(": ready (") == 4, r.stdout[-3000:]
     # IK and TO held-out references of the same index share their parameters
     to_report = json.loads((out / "eval" / "to" / "eval.json").read_text())
     ik_report = json.loads((out / "eval" / "ik" / "eval.json").read_text())

@@ -50,7 +50,7 @@ def table3(
     to_ablation: str = typer.Option(None, "--to-ablation", help="The TO policies' inputs (pos, pos_f, pos_t, pos_f_t)."),
     seed: int = typer.Option(None, help="Seed of the training references and training; held-out references use seed + 1."),
     device: str = typer.Option(None, help="Training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp on a GPU)."),
-    workers: int = typer.Option(None, min=0, help="Generation processes (0: every core)."),
+    workers: int = typer.Option(None, min=0, help="Generation processes, and policies trained at once on a CPU (0: every core)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Table III (TO, IK, human; history 0/5/10/15) and Fig. 3 (stairs, slopes), resumable."""

@@ -64,7 +64,7 @@ class ExperimentSettings(Settings):
     sweep_start: float = 1.0  # m from the start to the terrain
     yaw_range: float = 25.0  # degrees
     seed: int = 0  # training references' seed; held-out ones use seed + 1
-    workers: int = 0  # generation processes (0: every core)
+    workers: int = 0  # generation processes, and policies trained at once on a CPU (0: every core)
     human: str | None = None  # folder of AMASS .npz / BVH clips; None: constructed clips
     device: str = "cpu"  # training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp), as `train --device`
 

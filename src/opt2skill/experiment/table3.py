@@ -22,7 +22,8 @@ from typing import Any
 
 from opt2skill.cli.console import console
 from opt2skill.experiment import sources
-from opt2skill.experiment.runner import add_output, need, publish_table, run_experiment, train_policy
+from opt2skill.experiment.runner import (add_output, done, need, publish_table, run_experiment, train_policies_at_once,
+                                         train_policy)
 from opt2skill.experiment.settings import SOURCE_LABELS, SOURCES, ExperimentSettings
 from opt2skill.experiment.steps import DONE, Steps, Unavailable
 
@@ -45,6 +46,7 @@ def run_table3(s: ExperimentSettings, out: Path, progress: bool = True) -> dict[
         data = {(src, split): steps.run(f"data-{src}-{split}", f"{SOURCE_LABELS[src]} references ({split})",
                                         lambda src=src, split=split: sources.build(src, split, s, out, progress))
                 for src in SOURCES for split in ("train", "test")}
+        _train_at_once(s, out, rows, data, steps)
         for key, (src, h) in rows.items():
             steps.run(f"train-{key}", f"train {key} ({SOURCE_LABELS[src]}, history {h})",
                       lambda key=key, src=src, h=h: _train(s, out, key, src, h, data, progress))
@@ -67,12 +69,27 @@ def eval_dir(out: Path, key: str) -> Path:
     return Path(out) / "eval" / key
 
 
+def _ablation(s: ExperimentSettings, source: str) -> str:
+    return s.to_ablation if source == "to" else "pos"  # kinematic records carry no torques or forces
+
+
+def _train_at_once(s: ExperimentSettings, out: Path, rows: dict[str, tuple[str, int]], data, steps: Steps) -> None:
+    """The policies not trained yet whose references are there, `--workers` at a time on a CPU (0:
+    every core), before the training steps record them."""
+    import os
+
+    if s.device != "cpu":
+        return
+    jobs = [(key, data[(src, "train")]["result"], _ablation(s, src), h) for key, (src, h) in rows.items()
+            if done(steps, f"train-{key}") is None and data[(src, "train")]["status"] == DONE]
+    train_policies_at_once(s, out, jobs, COMMAND, s.workers or os.cpu_count() or 1)
+
+
 def _train(s: ExperimentSettings, out: Path, key: str, source: str, history: int, data, progress: bool) -> dict:
     record = data[(source, "train")]
     if record["status"] != DONE:
         raise Unavailable(f"no training references ({record['result']['reason']})")
-    ablation = s.to_ablation if source == "to" else "pos"  # kinematic records carry no torques or forces
-    return train_policy(s, out, key, record["result"], ablation, history, COMMAND, progress)
+    return train_policy(s, out, key, record["result"], _ablation(s, source), history, COMMAND, progress)
 
 
 def _evaluate(s: ExperimentSettings, out: Path, key: str, source: str, steps: Steps, progress: bool) -> dict:
