@@ -81,17 +81,18 @@ def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: st
             "distill_env_steps": result.get("distill_env_steps", 0)}
 
 
-def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, Any], str, int]], command: str,
-                           workers: int) -> None:
+def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, Any], str, int]], command: str) -> None:
     """Train the runs of `jobs` ((key, data step result, ablation, history), those not finished yet) up
-    to `workers` at a time, each in its own process, so that a machine's cores share the training.
+    to `s.workers` at a time (0: every core), each in its own process, so that a machine's cores share
+    the training; on a GPU (`s.device` not cpu) the training steps train one after another.
     The experiment's training steps then come after, one by one as before: each resumes its run,
     finds it finished, and records it. A run that fails here is only announced: its step trains it
     again and records what happens."""
     from concurrent.futures import ProcessPoolExecutor, as_completed
     from multiprocessing import get_context
 
-    if workers < 2 or len(jobs) < 2:
+    workers = s.workers or os.cpu_count() or 1
+    if s.device != "cpu" or workers < 2 or len(jobs) < 2:
         return
     workers = min(workers, len(jobs))
     console.print(f"training {len(jobs)} policies, {workers} at a time in their own processes "

@@ -74,15 +74,11 @@ def _ablation(s: ExperimentSettings, source: str) -> str:
 
 
 def _train_at_once(s: ExperimentSettings, out: Path, rows: dict[str, tuple[str, int]], data, steps: Steps) -> None:
-    """The policies not trained yet whose references are there, `--workers` at a time on a CPU (0:
-    every core), before the training steps record them."""
-    import os
-
-    if s.device != "cpu":
-        return
+    """The policies not trained yet whose references are there, `--workers` at a time, before the
+    training steps record them."""
     jobs = [(key, data[(src, "train")]["result"], _ablation(s, src), h) for key, (src, h) in rows.items()
             if done(steps, f"train-{key}") is None and data[(src, "train")]["status"] == DONE]
-    train_policies_at_once(s, out, jobs, COMMAND, s.workers or os.cpu_count() or 1)
+    train_policies_at_once(s, out, jobs, COMMAND)
 
 
 def _train(s: ExperimentSettings, out: Path, key: str, source: str, history: int, data, progress: bool) -> dict:

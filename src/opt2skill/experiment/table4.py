@@ -64,15 +64,12 @@ def data_result(s: Table4Settings, steps: Steps, role: str) -> dict[str, Any]:
 
 
 def _train_at_once(s: Table4Settings, out: Path, steps: Steps) -> None:
-    """The policies not trained yet, `--workers` at a time on a CPU (0: every core; a GPU trains one
-    after another), before the training steps record them."""
-    import os
-
+    """The policies not trained yet, `--workers` at a time, before the training steps record them."""
     pending = [a for a in s.ablations if done(steps, f"train-{a}") is None]
-    if s.device != "cpu" or len(pending) < 2 or done(steps, f"data-{force_sets.roles(s)['train'][0].name}") is None:
+    if done(steps, f"data-{force_sets.roles(s)['train'][0].name}") is None:
         return
     data = data_result(s, steps, "train")
-    train_policies_at_once(s, out, [(a, data, a, s.history) for a in pending], COMMAND, s.workers or os.cpu_count() or 1)
+    train_policies_at_once(s, out, [(a, data, a, s.history) for a in pending], COMMAND)
 
 
 def eval_dir(out: Path, ablation: str, force: float) -> Path:
