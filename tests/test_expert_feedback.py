@@ -123,6 +123,23 @@ def test_standing_segments_are_the_walks_start_and_end(robot, walk):
     assert standing_segments(walk, StandingLQR(), feet[:1]) == []
 
 
+def test_standing_gains_are_solved_once_per_process_and_again_for_another_state(robot, walk):
+    from opt2skill.expert.standing import GAIN_CACHE
+
+    first = FeedbackExpert(robot, [walk])
+    solved = GAIN_CACHE.solved
+    second = FeedbackExpert(robot, [walk])  # the same references again (a PPO stage's anchor): no solve
+    assert GAIN_CACHE.solved == solved
+    assert np.array_equal(first._gains, second._gains)
+    # Another torque at a segment's middle frame is another linearization: solved, and a different gain.
+    (a, b), _ = standing_segments(walk, StandingLQR(), [f.name for f in robot.config.feet])
+    torque = walk.joint_torque.copy()
+    torque[(a + b) // 2] *= 1.2
+    third = FeedbackExpert(robot, [replace(walk, joint_torque=torque)])
+    assert GAIN_CACHE.solved == solved + 1
+    assert not np.array_equal(third._gains, first._gains)
+
+
 def hold_after_end(robot, walk, standing, push: float) -> np.ndarray:
     """Run the expert from 0.5 s before the walk's end to 2.5 s after it, pushing the base forward
     by `push` m/s at the end; the final base deviation from the last frame (m)."""

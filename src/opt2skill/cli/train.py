@@ -62,6 +62,9 @@ def train(
     judge_n: int = typer.Option(10, "--judge-n", help="Held-out references per judgement."),
     device: str = typer.Option("cpu", "--device", help="Physics backend: cpu (C MuJoCo on every core) or cuda "
                                "(MuJoCo Warp on the GPU; pip install 'opt2skill[gpu]', docs/training.md)."),
+    procs: int = typer.Option(1, "--procs", help="Processes training together on this machine, each with "
+                              "--num-envs worlds and its share of the cores; their gradients are averaged "
+                              "(rl.processes; --init scratch). Under torchrun, torchrun's processes."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Train a tracking policy on a dataset (PPO, rsl_rl); checkpoints, TensorBoard logs, resume."""
@@ -78,7 +81,8 @@ def train(
     request = TrainRequest(dataset=dataset, out=out, steps=steps, num_envs=num_envs, history=history,
                            ablation=ablation, seed=seed, threads=threads, checkpoint_every=checkpoint_every,
                            command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out, kp_scale=kp_scale, sampling=sampling,
-                           judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed), device=device)
+                           judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed), device=device,
+                           procs=procs)
     request.check()
     _terminate_as_interrupt()
     if init == "distill":
@@ -91,6 +95,10 @@ def train(
         result = run_distilled(request, distill_steps, progress=not quiet, distill=distill, announce=_say)
     else:
         result = run(request, progress=not quiet, announce=_say)
+    from opt2skill.rl.processes import from_environment
+
+    if not from_environment().is_main:  # under torchrun: rank 0 reports
+        return
     if result.get("already_done"):
         console.print(f"{out}: already trained to {result['env_steps']} environment steps (iteration "
                       f"{result['iteration']}); raise --steps to train further", soft_wrap=True)

@@ -8,10 +8,17 @@ the optimizer's contact dynamics (Crocoddyl's `DifferentialActionModelContactFwd
 as 6D contacts held where they stand, semi-implicit Euler at the 5-ms frame step) linearized at the
 segment's middle frame, `scipy.linalg.solve_discrete_are` for the Riccati equation. The gain acts
 on the same tangent-space deviation as DDP's (u = u_ref - K (x (-) x_ref)).
+
+A gain is a function of the robot, the frame's state, torque and contacts, and the weights only, so
+each is solved once per process (`GAIN_CACHE`): a distillation builds the expert for its own stage
+and again for the PPO stage's anchor, and about 10 ms of Riccati solve per segment adds up to
+seconds on a hundred references.
 """
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
 from collections.abc import Collection
 from dataclasses import dataclass
 
@@ -62,8 +69,49 @@ def standing_segments(traj: Trajectory, weights: StandingLQR, feet: Collection[s
     return [(int(a), int(b)) for a, b in zip(starts, stops) if b - a >= shortest]
 
 
+class GainCache:
+    """The newest `size` gains solved in this process, by what decides them."""
+
+    def __init__(self, size: int = 4096):  # 4 kB each for Digit: at most 16 MB
+        self.size, self._gains = size, OrderedDict()
+        self.solved = 0  # Riccati equations solved (the misses)
+
+    @staticmethod
+    def key(robot: Robot, traj: Trajectory, frame: int, weights: StandingLQR) -> tuple:
+        state = hashlib.sha1()
+        for part in (traj.qpos[frame], traj.qvel[frame], traj.joint_torque[frame], traj.contact_active[frame]):
+            state.update(np.ascontiguousarray(part).tobytes())
+        return robot.hash, tuple(traj.contact_names), state.hexdigest(), weights
+
+    def get(self, key: tuple) -> np.ndarray | None:
+        gain = self._gains.get(key)
+        if gain is not None:
+            self._gains.move_to_end(key)
+        return gain
+
+    def put(self, key: tuple, gain: np.ndarray) -> None:
+        gain.setflags(write=False)  # shared by every expert that asks: nobody may change it
+        self._gains[key] = gain
+        self.solved += 1
+        while len(self._gains) > self.size:
+            self._gains.popitem(last=False)
+
+
+GAIN_CACHE = GainCache()
+
+
 def standing_gain(robot: Robot, traj: Trajectory, frame: int, weights: StandingLQR) -> np.ndarray:
-    """The LQR gain (nu, 2 nv) at one frame of a standing segment (float32, like the stored gains)."""
+    """The LQR gain (nu, 2 nv) at one frame of a standing segment (float32, like the stored gains;
+    read-only: solved once per process, `GAIN_CACHE`)."""
+    key = GainCache.key(robot, traj, frame, weights)
+    gain = GAIN_CACHE.get(key)
+    if gain is None:
+        gain = _solve_standing_gain(robot, traj, frame, weights)
+        GAIN_CACHE.put(key, gain)
+    return gain
+
+
+def _solve_standing_gain(robot: Robot, traj: Trajectory, frame: int, weights: StandingLQR) -> np.ndarray:
     feet = {foot.name: foot for foot in robot.config.feet}
     in_contact = [name for name, on in zip(traj.contact_names, traj.contact_active[frame]) if on]
     unknown = [name for name in in_contact if name not in feet]

@@ -183,6 +183,9 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     """Distil (or resume distilling), then train with PPO (or resume it); the last PPO iteration's
     figures. `announce` is told each stage's resume."""
     request.check()
+    if request.procs != 1:
+        raise ConfigError("--procs above 1 trains PPO from scratch (--init scratch); distillation and its PPO stage "
+                          "run in one process")
     if not (isinstance(distill_steps, int) and distill_steps >= 1):
         raise ConfigError(f"--distill-steps must be a positive number of environment steps, got {distill_steps}")
     distill = distill or DistillConfig()

@@ -53,11 +53,16 @@ class RunSpec:
     # The dataset's contacts, whose forces the policy observes (docs/envs.md); None: the robot's feet, as
     # every run before contacts beyond the feet (left out of run.json then, so those runs still resume).
     contacts: tuple[str, ...] | None = None
+    # Processes training together (rl.processes), each with num_envs worlds: the batch of an iteration
+    # is theirs together. 1 is left out of run.json (as every run before it, which still resume).
+    processes: int = 1
 
     def to_dict(self) -> dict[str, Any]:
         data = json.loads(dumps(dataclasses.asdict(self)))
         if data["contacts"] is None:
             del data["contacts"]
+        if data["processes"] == 1:
+            del data["processes"]
         episodes, default = data["tracking"]["episodes"], dataclasses.asdict(EpisodeConfig())
         for key in LATER_EPISODE_KEYS:  # at their defaults they are what runs before them did: leave them out
             if episodes.get(key) == default[key]:

@@ -3,6 +3,7 @@ directory, the environment, the trainer; resumable and logged (docs/training.md)
 
 from __future__ import annotations
 
+import contextlib
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,12 +26,15 @@ from opt2skill.provenance import provenance
 from opt2skill.rl import checkpoint
 from opt2skill.rl.best import HeldOutJudge, JudgeConfig
 from opt2skill.rl.config import PPOConfig
+from opt2skill.rl import processes
 from opt2skill.rl.policy import Policy, load_policy
+from opt2skill.rl.processes import Group
 from opt2skill.rl.run import RunSpec, check_run, open_run, trim_progress
 from opt2skill.rl.trainer import Schedule, Trainer
 from opt2skill.sim.devices import check_device
 
 MAX_ENVS = 4096
+MAX_PROCS = 64
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,7 @@ class TrainRequest:
     judge: JudgeConfig = JudgeConfig()
     device: str = "cpu"  # physics backend: cpu (C MuJoCo) or cuda (MuJoCo Warp), opt2skill.sim.devices
     sampling: str = "uniform"  # where episodes start: uniform or adaptive (envs.start_sampling)
+    procs: int = 1  # processes training together (rl.processes), each with num_envs worlds of its own
 
     def check(self) -> None:
         if not (isinstance(self.steps, int) and self.steps >= 1):
@@ -72,6 +77,20 @@ class TrainRequest:
         if self.sampling not in SAMPLINGS:
             raise ConfigError(f"--sampling must be one of {', '.join(SAMPLINGS)}, got '{self.sampling}'")
         check_device(self.device)  # e.g. --device cuda without a GPU: one error before anything is written
+        if not (isinstance(self.procs, int) and 1 <= self.procs <= MAX_PROCS):
+            raise ConfigError(f"--procs must be in [1, {MAX_PROCS}] processes, got {self.procs}")
+
+    def threads_per_process(self, size: int) -> int:
+        """--threads, or this machine's cores shared out among the group's processes on it."""
+        return self.threads or max(1, (os.cpu_count() or 1) // size)
+
+
+def group_size(request: TrainRequest, group: Group) -> int:
+    """How many processes train: torchrun's (if started by it), else --procs."""
+    if group.size > 1 and request.procs not in (1, group.size):
+        raise ConfigError(f"--procs {request.procs} differs from the {group.size} processes torchrun started; "
+                          f"leave --procs out under torchrun")
+    return group.size if group.size > 1 else request.procs
 
 
 def open_dataset(path: Path):
@@ -130,10 +149,21 @@ def resume_line(run: Path, iteration: int, path: Path | None, stage: str = "") -
     return f"resuming {run}{' (' + stage + ')' if stage else ''} from iteration {iteration} (checkpoint {path})"
 
 
-def train(request: TrainRequest, progress: bool = True, announce: Callable[[str], None] = no_announce) -> dict[str, Any]:
-    """Train (or resume) the run `request.out`; the last iteration's figures. `announce` is told a
-    resume (the line `resume_line` makes)."""
-    request.check()
+@dataclass(frozen=True)
+class Prepared:
+    """What a training reads and checks before it writes anything."""
+
+    dataset: Any
+    robot: Any
+    config: TrackingConfig
+    ppo: PPOConfig
+    spec: RunSpec
+    invocation: dict[str, Any]
+
+
+def prepare(request: TrainRequest, size: int) -> Prepared:
+    """The dataset, robot, task and run identity of `request` trained by `size` processes; checked
+    against an existing run (reads only)."""
     check_output_dir(request.out)
     dataset, robot = open_dataset(request.dataset)
     if len(dataset):  # kinematic references (IK, human) and force/torque inputs: refused before any work
@@ -141,44 +171,79 @@ def train(request: TrainRequest, progress: bool = True, announce: Callable[[str]
         check_reference_inputs(request.ablation, first.has_dynamics, first.source)
     config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
                              request.sampling)
-    judge = held_out_judge(request, dataset, robot, config)  # its references are read before anything is written
     ppo = PPOConfig()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
                    num_envs=request.num_envs, seed=request.seed,
-                   contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names))
+                   contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names), processes=size)
     invocation = {"command": request.command, "steps": request.steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
     check_run(request.out, spec)  # a resume with another configuration: said before the slow loading
-    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)  # every file read first
-    with folder_lock(request.out):
-        check_checkpoints(request.out, robot, config)
-        existed = open_run(request.out, spec, invocation)
-        return _train_ppo(request, robot, bank, config, ppo, existed, progress, announce, judge)
+    return Prepared(dataset, robot, config, ppo, spec, invocation)
+
+
+def train(request: TrainRequest, progress: bool = True, announce: Callable[[str], None] = no_announce) -> dict[str, Any]:
+    """Train (or resume) the run `request.out`; the last iteration's figures. `announce` is told a
+    resume (the line `resume_line` makes). With `procs` > 1 the processes are started here (or, under
+    torchrun, this is one of them): rank 0's figures are returned."""
+    request.check()
+    group = processes.from_environment()
+    size = group_size(request, group)
+    prepared = prepare(request, size)
+    held_out_judge(request, prepared.dataset, prepared.robot, prepared.config)  # its errors before anything starts
+    if size > 1 and group.size == 1:
+        return processes.launch(size, _train_in_group, request, progress, announce)
+    processes.join(group)
+    return _train_in_group(request, progress, announce, prepared)
+
+
+def _train_in_group(request: TrainRequest, progress: bool, announce: Callable[[str], None],
+                    prepared: Prepared | None = None) -> dict[str, Any]:
+    """`train` on this process of its group: rank 0 opens and writes the run, every process trains."""
+    group = processes.from_environment()
+    prepared = prepared or prepare(request, group.size)
+    judge = held_out_judge(request, prepared.dataset, prepared.robot, prepared.config) if group.is_main else None
+    bank = ReferenceBank.from_dataset(prepared.robot, prepared.dataset, prepared.config.observations.end_effectors)
+    with folder_lock(request.out) if group.is_main else contextlib.nullcontext():
+        existed = None
+        if group.is_main:
+            check_checkpoints(request.out, prepared.robot, prepared.config)
+            existed = open_run(request.out, prepared.spec, prepared.invocation)
+        existed = group.decide(existed)  # the others wait here until rank 0 has opened the run
+        if not group.is_main:
+            progress, announce = False, no_announce
+        return _train_ppo(request, prepared.robot, bank, prepared.config, prepared.ppo, existed, progress, announce,
+                          judge, group)
 
 
 def _train_ppo(request: TrainRequest, robot, bank, config, ppo: PPOConfig, existed: bool, progress: bool,
-               announce: Callable[[str], None], judge: HeldOutJudge | None = None) -> dict[str, Any]:
-    """The PPO loop of `train` on an opened run (its lock held)."""
+               announce: Callable[[str], None], judge: HeldOutJudge | None = None,
+               group: Group = processes.ONE) -> dict[str, Any]:
+    """The PPO loop of `train` on an opened run (its lock held by rank 0)."""
     from torch.utils.tensorboard import SummaryWriter
 
-    threads = set_threads(request.threads)
-    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads,
-                     device=request.device) as env:
-        trainer = Trainer(env, ppo, request.out, seed=request.seed)
+    threads = set_threads(request.threads_per_process(group.size))
+    device = f"cuda:{group.local_rank}" if group.size > 1 and request.device == "cuda" else request.device
+    with TrackingEnv(robot, bank, config, request.num_envs, seed=group.seed(request.seed), threads=threads,
+                     device=device) as env:
+        trainer = Trainer(env, ppo, request.out, seed=request.seed, group=group)
         trainer.judge = judge
         if existed and trainer.resume_latest():
             announce(resume_line(request.out, trainer.iteration, checkpoint.latest(request.out)))
         else:
-            trim_progress(request.out, 0)
+            if group.is_main:
+                trim_progress(request.out, 0)
             trainer.warm_up_normalizers()
         if trainer.iteration >= trainer.iterations_for(request.steps):
             return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True}
-        writer = SummaryWriter(str(Path(request.out) / "tb"), purge_step=trainer.iteration + 1, flush_secs=10)
+        writer = None
+        if group.is_main:
+            writer = SummaryWriter(str(Path(request.out) / "tb"), purge_step=trainer.iteration + 1, flush_secs=10)
         try:
             figures = trainer.train(Schedule(request.steps, request.checkpoint_every), progress=progress, writer=writer)
         finally:
-            writer.close()
+            if writer is not None:
+                writer.close()
         return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "elapsed": trainer.elapsed,
                 "checkpoint": str(checkpoint.latest(request.out)), **figures}
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from rsl_rl.algorithms import PPO
 
@@ -26,6 +27,7 @@ from opt2skill.envs import TrackingEnv
 from opt2skill.rl import checkpoint
 from opt2skill.rl.best import judge_actor
 from opt2skill.rl.config import PPOConfig
+from opt2skill.rl.processes import ONE, Group
 from opt2skill.rl.run import PROGRESS_FILE, trim_progress
 from opt2skill.rl.vec_env import TrackingVecEnv
 
@@ -39,21 +41,27 @@ class Schedule:
     checkpoint_minutes: float = 5.0  # also checkpoint when this much wall time has passed
 
 
-def build_algorithm(venv: TrackingVecEnv, ppo: PPOConfig) -> PPO:
-    """rsl_rl's PPO with our actor and critic settings (its construction chatter kept off the terminal)."""
-    cfg = ppo.rsl_rl(venv.env.sim.policy_dt)
+def build_algorithm(venv: TrackingVecEnv, ppo: PPOConfig, group: Group = ONE) -> PPO:
+    """rsl_rl's PPO with our actor and critic settings (its construction chatter kept off the terminal);
+    in a group of processes, averaging gradients with the others and starting from rank 0's networks."""
+    cfg = {**ppo.rsl_rl(venv.env.sim.policy_dt), "multi_gpu": group.rsl_rl()}
     with contextlib.redirect_stdout(io.StringIO()):
         alg = PPO.construct_algorithm(venv.get_observations(), venv, cfg, "cpu")
     last = [m for m in alg.actor.mlp if isinstance(m, torch.nn.Linear)][-1]
     with torch.no_grad():  # the untrained policy's mean action is ~0: the default pose, not a random offset
         last.weight.mul_(ppo.actor_output_gain)
         last.bias.zero_()
+    if group.size > 1:
+        alg.broadcast_parameters()
     return alg
 
 
 class Trainer:
-    def __init__(self, env: TrackingEnv, ppo: PPOConfig, run: Path | None = None, seed: int = 0):
+    def __init__(self, env: TrackingEnv, ppo: PPOConfig, run: Path | None = None, seed: int = 0, group: Group = ONE):
+        """`group`: one of several processes training together (`rl.processes`); `env` is this
+        process's worlds, `run` is written by rank 0 only, and the counters and schedule are the group's."""
         self.env, self.ppo, self.run = env, ppo, (Path(run) if run is not None else None)
+        self.group, self.seed = group, seed
         # Optional `rl.anchor.ExpertAnchor` on this trainer's actor (set before resuming): told each actor
         # observation before the action (`observe`), trained after each PPO update (`learn`).
         self.anchor = None
@@ -63,11 +71,13 @@ class Trainer:
         # Optional `rl.pace.AdaptivePace`: the curriculum advances with the policy's failure rate
         # instead of with the environment steps.
         self.pace = None
-        torch.manual_seed(seed)
+        torch.manual_seed(seed)  # the networks' initialization: the same on every process of a group
         self.venv = TrackingVecEnv(env, ppo.reward_scale or None)
-        self.alg = build_algorithm(self.venv, ppo)
+        self.alg = build_algorithm(self.venv, ppo, group)
+        torch.manual_seed(group.seed(seed))  # the actions' noise: a stream of each process's own
         self.steps_per_env = ppo.steps_per_env(env.sim.policy_dt)
-        self.batch = env.num_envs * self.steps_per_env
+        self.local_batch = env.num_envs * self.steps_per_env
+        self.batch = group.size * self.local_batch  # environment steps per iteration, all processes
         self.iteration = 0  # completed iterations
         self.env_steps = 0
         self.elapsed = 0.0  # wall seconds spent training, over all invocations
@@ -117,6 +127,10 @@ class Trainer:
         self.env.rng.bit_generator.state = data["env_rng"]
         if "starts" in data:
             self.env.starts.restore(data["starts"])
+        if not self.group.is_main:  # the checkpoint holds rank 0's streams: the others draw fresh ones of their own
+            seed = self.group.seed(self.seed) + self.iteration
+            torch.manual_seed(seed)
+            self.env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
         self.env.set_progress(data["progress"])
         self.env.reset()
         self.venv.refresh()
@@ -126,7 +140,8 @@ class Trainer:
         if path is None:
             return False
         self.restore(checkpoint.load(path), path)
-        trim_progress(self.run, self.iteration)
+        if self.group.is_main:
+            trim_progress(self.run, self.iteration)
         return True
 
     # ------------------------------------------------------------ training
@@ -190,11 +205,11 @@ class Trainer:
             "curriculum/penalty_factor": self.env.penalty_factor,
             "curriculum/randomization_width": self.env.randomization_width,
             "episode/start_concentration": self.env.starts.concentration(),
-            "perf/env_steps_per_s": self.batch / (collected - start),
-            "perf/learner_samples_per_s": self.batch * self.ppo.num_learning_epochs / (learned - collected),
+            "perf/env_steps_per_s": self.local_batch / (collected - start),
+            "perf/learner_samples_per_s": self.local_batch * self.ppo.num_learning_epochs / (learned - collected),
             "perf/iteration_s": learned - start,
         })
-        return figures
+        return self.group.combine(figures)
 
     def train(self, schedule: Schedule, progress: bool = True, writer=None,
               stop_after: int | None = None) -> dict[str, float]:
@@ -222,14 +237,14 @@ class Trainer:
                 due = self.iteration % schedule.checkpoint_every == 0 or (
                     time.monotonic() - last_save > 60 * schedule.checkpoint_minutes)
                 judged = self.judge is not None and (self.judge.due(self.iteration) or self.iteration == last)
-                if self.run is not None and (due or judged or self.iteration == last):
+                if self.writes and (due or judged or self.iteration == last):
                     saved = self.save()
                     last_save = time.monotonic()
                     if judged:
                         self._log(judge_actor(self.judge, self.alg.actor, saved, "ppo", self.iteration,
                                               self.env_steps, self.elapsed), writer, progress_file=False)
         except KeyboardInterrupt:
-            if self.run is not None and self.iteration > 0 and not self._updating:
+            if self.writes and self.iteration > 0 and not self._updating:
                 self.save()  # the networks of the last whole iteration (the rollout in flight is dropped)
             raise
         finally:
@@ -237,7 +252,14 @@ class Trainer:
                 bar.close()
         return figures
 
+    @property
+    def writes(self) -> bool:
+        """Whether this trainer writes the run (checkpoints, progress): rank 0 of a group does."""
+        return self.run is not None and self.group.is_main
+
     def _log(self, figures: dict[str, float], writer, progress_file: bool = True) -> None:
+        if not self.group.is_main:
+            return
         if not progress_file:  # figures about the iteration just logged (TensorBoard only)
             log_iteration(None, writer, self.iteration, self.env_steps, self.elapsed, figures)
             return

@@ -1,0 +1,138 @@
+"""Data-parallel PPO over several processes: each trains on worlds of its own, gradients averaged.
+
+rsl_rl's PPO already knows how (its `multi_gpu` settings): it averages the gradients and the
+adaptive learning rate's KL over `torch.distributed`, and its observation normalizers average their
+statistics there too. This module supplies the process group and the few decisions our loop must
+take together: whether to checkpoint (rank 0's clock decides), and the iteration's figures (the mean
+over the processes, rates summed), so that every process runs the same sequence of collective
+calls and an adaptive curriculum moves the same way everywhere.
+
+The learner stays on the CPU (gloo backend) whatever the physics device; process r steps its
+physics on `cuda:r` with `--device cuda` under `torchrun` on a multi-GPU machine, and on CPU cores
+otherwise. Two ways to start:
+
+    opt2skill train ... --procs 2                      # this machine, 2 processes (spawned here)
+    torchrun --nproc-per-node 8 -m opt2skill train ...  # torchrun's processes (and its rendezvous)
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+# Figures that are counts or rates of one process's worlds: the group's is their sum, not their mean.
+SUMMED = ("perf/env_steps_per_s", "perf/learner_samples_per_s", "episode/count", "randomization/pushes")
+SUMMED_PREFIXES = ("terminations/",)
+
+
+def summed(key: str) -> bool:
+    return key in SUMMED or key.startswith(SUMMED_PREFIXES)
+
+
+@dataclass(frozen=True)
+class Group:
+    """This process's place in a data-parallel training (rank 0 writes the run)."""
+
+    rank: int
+    size: int
+    local_rank: int = 0
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    def rsl_rl(self) -> dict[str, int] | None:
+        """rsl_rl's `multi_gpu` settings (None for one process)."""
+        if self.size == 1:
+            return None
+        return {"global_rank": self.rank, "local_rank": self.local_rank, "world_size": self.size}
+
+    def seed(self, seed: int) -> int:
+        """This process's seed: `seed` itself on rank 0 (one process trains exactly as before), an
+        independent stream derived from (seed, rank) on the others."""
+        if self.rank == 0:
+            return seed
+        return int(np.random.SeedSequence([seed, self.rank]).generate_state(1)[0])
+
+    def decide(self, value: Any) -> Any:
+        """Rank 0's `value` on every process (a decision all must take together)."""
+        if self.size == 1:
+            return value
+        box = [value]
+        torch.distributed.broadcast_object_list(box, src=0)
+        return box[0]
+
+    def combine(self, figures: dict[str, float]) -> dict[str, float]:
+        """The group's figures of an iteration: per key the mean over the processes that have it
+        (an episode figure exists only where episodes ended); counts and throughput rates summed."""
+        if self.size == 1:
+            return figures
+        everyone: list[dict[str, float]] = [{} for _ in range(self.size)]
+        torch.distributed.all_gather_object(everyone, figures)
+        keys = sorted({k for f in everyone for k in f})
+        combined = {}
+        for key in keys:
+            values = [f[key] for f in everyone if key in f]
+            combined[key] = float(np.sum(values) if summed(key) else np.mean(values))
+        return combined
+
+    def barrier(self) -> None:
+        if self.size > 1:
+            torch.distributed.barrier()
+
+
+ONE = Group(0, 1)
+
+
+def from_environment() -> Group:
+    """The group torchrun (or `launch`) described in the environment; one process without one."""
+    size = int(os.environ.get("WORLD_SIZE", "1"))
+    if size <= 1:
+        return ONE
+    return Group(int(os.environ["RANK"]), size, int(os.environ.get("LOCAL_RANK", os.environ["RANK"])))
+
+
+def join(group: Group) -> None:
+    """Join the process group (gloo: the learner is on the CPU). No-op for one process or if joined."""
+    if group.size > 1 and not torch.distributed.is_initialized():
+        torch.distributed.init_process_group("gloo", rank=group.rank, world_size=group.size)
+
+
+def leave(group: Group) -> None:
+    if group.size > 1 and torch.distributed.is_initialized():
+        torch.distributed.destroy_process_group()
+
+
+def launch(nprocs: int, target: Callable[..., Any], *args: Any) -> Any:
+    """Run `target(*args)` in `nprocs` processes of one group on this machine; rank 0's return value.
+
+    The processes are spawned (not forked: MuJoCo's and torch's thread pools do not survive a fork)
+    and meet at a free local port. If one fails, the others are stopped and its error is raised."""
+    import torch.multiprocessing as mp
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    results = mp.get_context("spawn").SimpleQueue()
+    mp.start_processes(_child, args=(nprocs, port, results, target, args), nprocs=nprocs, join=True,
+                       start_method="spawn")
+    return results.get()
+
+
+def _child(rank: int, nprocs: int, port: int, results, target: Callable[..., Any], args: tuple) -> None:
+    os.environ.update({"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "WORLD_SIZE": str(nprocs),
+                       "RANK": str(rank), "LOCAL_RANK": str(rank)})
+    group = from_environment()
+    join(group)
+    try:
+        result = target(*args)
+        if group.is_main:
+            results.put(result)
+    finally:
+        leave(group)

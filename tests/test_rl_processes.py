@@ -1,0 +1,132 @@
+"""Data-parallel PPO (`rl.processes`, `opt2skill train --procs N`): processes with worlds of their own
+train one policy. Real processes (spawned, gloo), real MuJoCo, real rsl_rl updates."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from envs_support import shared_dataset
+
+from opt2skill.rl import processes
+from opt2skill.rl.processes import Group
+from opt2skill.rl.run import read_progress, read_run
+
+CLI = [str(Path(sys.executable).parent / "opt2skill")]
+
+
+@pytest.fixture(scope="module")
+def squats(tmp_path_factory) -> Path:
+    return shared_dataset(tmp_path_factory, "squat", 3)
+
+
+def _flat(module: torch.nn.Module) -> np.ndarray:
+    return torch.cat([t.detach().flatten().double() for t in module.state_dict().values()]).numpy()
+
+
+def train_two_iterations(dataset: Path, out: Path) -> dict:
+    """One process of the group: 4 worlds of its own, two PPO iterations; its networks before and
+    after, its first observations and its counters, saved as OUT/rank<r>.npz."""
+    from opt2skill.data.reader import Dataset
+    from opt2skill.envs import ReferenceBank, TrackingEnv, tracking_config
+    from opt2skill.model import load_robot
+    from opt2skill.rl.config import PPOConfig
+    from opt2skill.rl.trainer import Schedule, Trainer
+
+    group = processes.from_environment()
+    torch.set_num_threads(1)
+    robot, config = load_robot("digit"), tracking_config("squat")
+    bank = ReferenceBank.from_dataset(robot, Dataset.open(dataset), config.observations.end_effectors, use_cache=False)
+    with TrackingEnv(robot, bank, config, 4, seed=group.seed(0), threads=1) as env:
+        trainer = Trainer(env, PPOConfig(), seed=0, group=group)
+        first = trainer.venv.get_observations()["actor"].numpy().copy()
+        before = np.r_[_flat(trainer.alg.actor), _flat(trainer.alg.critic)]
+        trainer.warm_up_normalizers()
+        figures = trainer.train(Schedule(total_steps=2 * trainer.batch), progress=False)
+        after = np.r_[_flat(trainer.alg.actor), _flat(trainer.alg.critic)]
+        np.savez(Path(out) / f"rank{group.rank}.npz", before=before, after=after, first=first,
+                 env_steps=trainer.env_steps, local_batch=trainer.local_batch, episodes=figures.get("episode/count", 0))
+    return figures
+
+
+def test_two_processes_keep_one_policy_trained_on_both_processes_worlds(squats, tmp_path):
+    figures = processes.launch(2, train_two_iterations, squats, tmp_path)
+    ranks = [np.load(tmp_path / f"rank{r}.npz") for r in range(2)]
+    # Rank 0's networks were broadcast: both started equal; gradients and normalizer statistics were
+    # averaged: both end equal, bit for bit, and training moved them.
+    assert np.array_equal(ranks[0]["before"], ranks[1]["before"])
+    assert np.array_equal(ranks[0]["after"], ranks[1]["after"])
+    assert np.abs(ranks[0]["after"] - ranks[0]["before"]).max() > 1e-3
+    # Each process steps worlds of its own (another seed: other references, start frames, randomization).
+    assert not np.allclose(ranks[0]["first"], ranks[1]["first"])
+    # The counters are the group's: two iterations of both processes' worlds.
+    for rank in ranks:
+        assert int(rank["env_steps"]) == 2 * 2 * int(rank["local_batch"])
+    # Figures combined over the group: throughput summed, so above either process's alone.
+    assert figures["perf/env_steps_per_s"] > 0 and "reward/step" in figures
+
+
+def _train(squats: Path, out: Path, *extra: str) -> subprocess.CompletedProcess:
+    args = [*CLI, "train", "--dataset", str(squats), "--out", str(out), "--num-envs", "4", "--quiet", *extra]
+    return subprocess.run(args, capture_output=True, text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_train_with_two_processes_writes_one_run_and_resumes_it(squats, tmp_path):
+    out = tmp_path / "run"
+    # Two iterations of 2 processes x 4 worlds x 48 steps, then two more on a resume.
+    first = _train(squats, out, "--steps", "768", "--procs", "2")
+    assert first.returncode == 0, first.stderr[-2000:]
+    assert read_run(out)["identity"]["processes"] == 2
+    progress = read_progress(out)
+    assert [p["env_steps"] for p in progress] == [384, 768]
+    assert (out / "checkpoints").is_dir() and len(list((out / "checkpoints").glob("*.pt"))) >= 1
+    again = _train(squats, out, "--steps", "1536", "--procs", "2")
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "resuming" in again.stdout and "from iteration 2" in again.stdout
+    assert [p["env_steps"] for p in read_progress(out)] == [384, 768, 1152, 1536]
+    assert len(json.loads((out / "run.json").read_text())["invocations"]) == 2
+    # Another number of processes is another configuration: refused, nothing written.
+    before = (out / "run.json").read_text()
+    other = _train(squats, out, "--steps", "2000", "--procs", "1")
+    assert other.returncode == 2 and "processes: 2 -> -" in other.stderr, other.stderr
+    assert (out / "run.json").read_text() == before
+
+
+@pytest.mark.parametrize("extra, message", [
+    (("--procs", "0"), "--procs must be in [1, 64]"),
+    (("--procs", "2", "--init", "distill"), "--procs above 1 trains PPO from scratch"),
+])
+def test_bad_process_counts_are_one_error(squats, tmp_path, extra, message):
+    result = _train(squats, tmp_path / "run", "--steps", "100", *extra)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert not (tmp_path / "run").exists()
+
+
+def test_each_process_draws_its_own_seed_and_rank_zero_keeps_the_given_one():
+    one, two = Group(0, 2), Group(1, 2)
+    assert one.seed(7) == 7 and two.seed(7) != 7 and two.seed(7) == Group(1, 4).seed(7)
+    assert processes.ONE.rsl_rl() is None and two.rsl_rl() == {"global_rank": 1, "local_rank": 0, "world_size": 2}
+
+
+def test_combined_figures_sum_counts_and_rates_and_average_the_rest():
+    assert processes.summed("terminations/height") and processes.summed("perf/env_steps_per_s")
+    assert not processes.summed("reward/step") and not processes.summed("episode/length_s")
+
+
+@pytest.mark.slow
+def test_torchrun_starts_the_same_training_and_rank_zero_alone_reports(squats, tmp_path):
+    torchrun = Path(sys.executable).parent / "torchrun"
+    out = tmp_path / "run"
+    result = subprocess.run([str(torchrun), "--nproc-per-node", "2", "-m", "opt2skill", "train", "--dataset",
+                             str(squats), "--out", str(out), "--num-envs", "4", "--steps", "384", "--quiet"],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.count("(last iteration)") == 1
+    assert read_run(out)["identity"]["processes"] == 2
+    assert [p["env_steps"] for p in read_progress(out)] == [384]
