@@ -1,15 +1,21 @@
-"""The tracking environment and the PPO learner against the raw physics ceiling, in one run.
+"""The tracking environment and the PPO learner against the raw physics ceilings, in one run.
 
-Prints three figures on this machine:
+Prints on this machine:
 
-1. the raw ceiling (benchmarks/sim_ceiling.py): `mujoco.rollout` of 32 standing robots, 100 physics
-   steps per call, on all cores (the issue's "mj_step physics steps/s of the Digit model");
+1. the standing ceiling (benchmarks/sim_ceiling.py): `mujoco.rollout` of 32 standing robots, 100
+   physics steps per call, on all cores (the issue's "mj_step physics steps/s of the Digit model");
 2. the environment's policy steps/s for N = 16, 64 and 256 worlds with observations, rewards,
    terminations, resets and Table II randomization (rough terrain for half the resets), the
    robots tracking references (a dataset, or a squat recorded in the simulator) under PD targets
-   near the reference plus noise like an exploring policy's; its ratio to the ceiling counts 5
-   physics steps per policy step, and the share of the step spent inside `rollout` is given too
-   (a moving robot costs the physics more than the ceiling's standing one);
+   near the reference plus noise like an exploring policy's, against two ceilings measured in
+   alternating blocks beside it:
+   - its own physics: the starts and controls of its `rollout` calls over 100 policy steps,
+     recorded, replayed in calls of 20 policy steps (100 physics steps) with nothing between them,
+     on its models and thread pool (`SameWorkCeiling`): what the environment could reach if all
+     its Python and the 5-step call granularity cost nothing;
+   - the standing ceiling, counting 5 physics steps per policy step (a moving robot costs the
+     physics more than a standing one, which no environment code can recover);
+   and the share of the step spent inside `rollout`;
 3. the PPO learner's samples/s (rsl_rl update: 5 epochs of 4 mini-batches over 128 worlds x 48 steps,
    actor and critic [512, 512, 256, 256]) with 1 and 2 torch threads.
 

@@ -25,6 +25,11 @@ def squats(tmp_path_factory) -> Path:
     return shared_dataset(tmp_path_factory, "squat", 3)
 
 
+@pytest.fixture(scope="module")
+def squats_with_gains(tmp_path_factory) -> Path:
+    return shared_dataset(tmp_path_factory, "squat", 3, keep_gains=True)
+
+
 def _flat(module: torch.nn.Module) -> np.ndarray:
     return torch.cat([t.detach().flatten().double() for t in module.state_dict().values()]).numpy()
 
@@ -100,7 +105,7 @@ def test_train_with_two_processes_writes_one_run_and_resumes_it(squats, tmp_path
 
 @pytest.mark.parametrize("extra, message", [
     (("--procs", "0"), "--procs must be in [1, 64]"),
-    (("--procs", "2", "--init", "distill"), "--procs above 1 trains PPO from scratch"),
+    (("--procs", "65"), "--procs must be in [1, 64]"),
 ])
 def test_bad_process_counts_are_one_error(squats, tmp_path, extra, message):
     result = _train(squats, tmp_path / "run", "--steps", "100", *extra)
@@ -123,10 +128,60 @@ def test_combined_figures_sum_counts_and_rates_and_average_the_rest():
 def test_torchrun_starts_the_same_training_and_rank_zero_alone_reports(squats, tmp_path):
     torchrun = Path(sys.executable).parent / "torchrun"
     out = tmp_path / "run"
-    result = subprocess.run([str(torchrun), "--nproc-per-node", "2", "-m", "opt2skill", "train", "--dataset",
+    result = subprocess.run([str(torchrun), "--standalone", "--nproc-per-node", "2", "-m", "opt2skill", "train", "--dataset",
                              str(squats), "--out", str(out), "--num-envs", "4", "--steps", "384", "--quiet"],
                             capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.count("(last iteration)") == 1
     assert read_run(out)["identity"]["processes"] == 2
     assert [p["env_steps"] for p in read_progress(out)] == [384]
+
+
+def distill_two_iterations(dataset: Path, out: Path) -> None:
+    """One process of the group: the feedback expert distilled into an actor on 4 worlds of its own for
+    two iterations; the actor before and after saved as OUT/distill<r>.npz."""
+    from opt2skill.data.reader import Dataset
+    from opt2skill.envs import ReferenceBank, TrackingEnv, tracking_config
+    from opt2skill.model import load_robot
+    from opt2skill.rl.distill import Distiller
+    from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config
+    from opt2skill.rl.distill_session import dataset_expert
+    from opt2skill.rl.policy import build_actor
+
+    group = processes.from_environment()
+    torch.set_num_threads(1)
+    robot, dataset = load_robot("digit"), Dataset.open(dataset)
+    distill = DistillConfig()
+    config = distillation_tracking_config(tracking_config("squat"), distill)
+    bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors, use_cache=False)
+    with TrackingEnv(robot, bank, config, 4, seed=group.seed(0), threads=1) as env:
+        torch.manual_seed(0 if group.is_main else 1)  # different initializations: the group must start from rank 0's
+        actor = build_actor(distill.student_ppo(), env.actor_dim, env.critic_dim, env.nu)
+        distiller = Distiller(env, dataset_expert(env, dataset, distill), actor, distill, seed=0, group=group)
+        before = _flat(actor)
+        figures = distiller.train(2, progress=False)
+        np.savez(Path(out) / f"distill{group.rank}.npz", before=before, after=_flat(actor),
+                 env_steps=distiller.env_steps, local_batch=distiller.local_batch, loss=figures["distill/loss"])
+
+
+def test_two_processes_distil_the_expert_into_one_actor(squats_with_gains, tmp_path):
+    processes.launch(2, distill_two_iterations, squats_with_gains, tmp_path)
+    ranks = [np.load(tmp_path / f"distill{r}.npz") for r in range(2)]
+    assert np.array_equal(ranks[0]["before"], ranks[1]["before"])  # rank 0's actor, although rank 1 drew another
+    assert np.array_equal(ranks[0]["after"], ranks[1]["after"])  # averaged gradients and normalizer statistics
+    assert np.abs(ranks[0]["after"] - ranks[0]["before"]).max() > 1e-3
+    for rank in ranks:
+        assert int(rank["env_steps"]) == 2 * 2 * int(rank["local_batch"])
+        assert float(rank["loss"]) == float(ranks[0]["loss"])  # the group's mean loss on both
+
+
+@pytest.mark.slow
+def test_distilled_training_runs_both_stages_in_two_processes(squats_with_gains, tmp_path):
+    out = tmp_path / "run"
+    result = _train(squats_with_gains, out, "--init", "distill", "--distill-steps", "400", "--steps", "384",
+                    "--procs", "2")
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert read_run(out)["identity"]["processes"] == 2
+    assert read_progress(out / "distill")[-1]["env_steps"] > 0
+    assert [p["env_steps"] for p in read_progress(out)] == [384]
+    assert result.stdout.count("(last iteration)") == 1

@@ -24,15 +24,16 @@ from rsl_rl.models import MLPModel
 from opt2skill.expert.acting import EnvExpert
 from opt2skill.rl.distill import LabelBuffer, clone_steps
 from opt2skill.rl.distill_config import DistillConfig
+from opt2skill.rl.processes import ONE, Group
 
 
 class ExpertAnchor:
-    def __init__(self, expert: EnvExpert, actor: MLPModel, config: DistillConfig, seed: int = 0):
+    def __init__(self, expert: EnvExpert, actor: MLPModel, config: DistillConfig, seed: int = 0, group: Group = ONE):
         env = expert.env
-        self.expert, self.actor, self.config = expert, actor, config
+        self.expert, self.actor, self.config, self.group = expert, actor, config, group
         self.buffer = LabelBuffer(config.buffer_samples, env.actor_dim, env.nu)
         self.optimizer = torch.optim.Adam(actor.parameters(), lr=config.anchor_learning_rate)
-        self.generator = torch.Generator().manual_seed(seed)
+        self.generator = torch.Generator().manual_seed(group.seed(seed))
         self._seen = self._labelled = 0
 
     def observe(self, actor_obs: np.ndarray) -> None:
@@ -46,11 +47,12 @@ class ExpertAnchor:
         figures = {"anchor/labelled_fraction": self._labelled / max(self._seen, 1)}
         self._seen = self._labelled = 0
         trainable = any(p.requires_grad for p in self.actor.parameters())
-        if trainable and self.buffer.size >= self.config.batch_size:
+        # Every process of a group must take the same steps (their gradients are averaged).
+        if self.group.everyone(trainable and self.buffer.size >= self.config.batch_size // self.group.size):
             training = self.actor.training
             self.actor.train()
             figures["anchor/loss"] = clone_steps(self.actor, self.optimizer, self.buffer, self.config.batch_size,
-                                                 self.config.anchor_updates, self.generator)
+                                                 self.config.anchor_updates, self.generator, self.group)
             self.actor.train(training)
         return figures
 

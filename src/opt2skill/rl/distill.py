@@ -36,6 +36,7 @@ from opt2skill.expert.acting import EnvExpert
 from opt2skill.rl import checkpoint
 from opt2skill.rl.best import judge_actor
 from opt2skill.rl.distill_config import DistillConfig
+from opt2skill.rl.processes import ONE, Group
 from opt2skill.rl.run import trim_progress
 from opt2skill.rl.trainer import log_iteration
 from opt2skill.rl.vec_env import EpisodeStats
@@ -67,8 +68,11 @@ class LabelBuffer:
 
 
 def clone_steps(actor: MLPModel, optimizer: torch.optim.Optimizer, buffer: LabelBuffer, batch_size: int,
-                updates: int, generator: torch.Generator) -> float:
-    """`updates` optimizer steps of mean-squared action error on minibatches of `buffer`; the mean loss."""
+                updates: int, generator: torch.Generator, group: Group = ONE) -> float:
+    """`updates` optimizer steps of mean-squared action error on minibatches of `buffer`; the mean loss.
+    In a group of processes each samples `batch_size / size` of its own buffer and the gradients are
+    averaged: the gradient of one `batch_size` minibatch, as in one process, for the same work."""
+    batch_size = max(1, batch_size // group.size)
     losses = []
     for _ in range(updates):
         obs, label = buffer.sample(batch_size, generator)
@@ -76,6 +80,7 @@ def clone_steps(actor: MLPModel, optimizer: torch.optim.Optimizer, buffer: Label
         loss = torch.mean((prediction - label) ** 2)
         optimizer.zero_grad()
         loss.backward()
+        group.average_gradients(actor.parameters())
         torch.nn.utils.clip_grad_norm_(actor.parameters(), 1.0)
         optimizer.step()
         losses.append(loss.item())
@@ -86,16 +91,21 @@ class Distiller:
     """DAgger + DART behaviour cloning of `expert` into `actor` on `env`."""
 
     def __init__(self, env: TrackingEnv, expert: EnvExpert, actor: MLPModel, config: DistillConfig,
-                 run: Path | None = None, seed: int = 0):
+                 run: Path | None = None, seed: int = 0, group: Group = ONE):
+        """`group`: one of several processes distilling together (`rl.processes`), as `Trainer`'s:
+        rank 0's actor to start, gradients and normalizer statistics averaged, rank 0 writes `run`."""
         config.check()
         self.env, self.expert, self.actor, self.config = env, expert, actor, config
         self.run = Path(run) if run is not None else None
+        self.group, self.seed = group, seed
+        group.share_module(actor)
         self.steps_per_env = config.steps_per_env(env.sim.policy_dt)
-        self.batch = env.num_envs * self.steps_per_env
+        self.local_batch = env.num_envs * self.steps_per_env
+        self.batch = group.size * self.local_batch  # environment steps per iteration, all processes
         self.optimizer = torch.optim.Adam(actor.parameters(), lr=config.learning_rate)
         self.buffer = LabelBuffer(config.buffer_samples, env.actor_dim, env.nu)
-        self.generator = torch.Generator().manual_seed(seed)
-        self.rng = np.random.default_rng(seed)
+        self.generator = torch.Generator().manual_seed(group.seed(seed))
+        self.rng = np.random.default_rng(group.seed(seed))
         self.stats = EpisodeStats(tuple(env.config.rewards.terms()))
         self.iteration, self.env_steps, self.elapsed = 0, 0, 0.0
         self.total_iterations = 1
@@ -146,7 +156,7 @@ class Distiller:
         seen = torch.from_numpy(np.concatenate(seen))
         self.actor.update_normalization(TensorDict({"actor": seen}, batch_size=[len(seen)]))
         figures = self.stats.summary(env.sim.policy_dt)
-        figures.update({"distill/expert_share": share, "distill/labelled_fraction": labelled / self.batch,
+        figures.update({"distill/expert_share": share, "distill/labelled_fraction": labelled / self.local_batch,
                         "distill/expert_lost_worlds": float(lost), "distill/buffer_samples": float(self.buffer.size),
                         "episode/start_concentration": env.starts.concentration()})
         return figures
@@ -159,7 +169,7 @@ class Distiller:
             group["lr"] = lr
         self.actor.train()
         loss = clone_steps(self.actor, self.optimizer, self.buffer, cfg.batch_size, cfg.updates_per_iteration,
-                           self.generator)
+                           self.generator, self.group)
         return {"distill/loss": loss, "distill/learning_rate": lr}
 
     def train_iteration(self) -> dict[str, float]:
@@ -171,10 +181,11 @@ class Distiller:
         self.iteration += 1
         self.env_steps += self.batch
         self.elapsed += learned - start
-        figures.update({"perf/env_steps_per_s": self.batch / (collected - start),
+        figures.update({"perf/env_steps_per_s": self.local_batch / (collected - start),
                         "perf/learner_samples_per_s": self.config.updates_per_iteration * self.config.batch_size
+                        // self.group.size
                         / (learned - collected), "perf/iteration_s": learned - start})
-        return figures
+        return self.group.combine(figures)
 
     # ------------------------------------------------------------ the stage
 
@@ -199,14 +210,14 @@ class Distiller:
                                         refresh=False)
                 due = self.iteration % checkpoint_every == 0 or time.monotonic() - last_save > 60 * checkpoint_minutes
                 judged = self.judge is not None and (self.judge.due(self.iteration) or self.iteration == total_iterations)
-                if self.run is not None and (due or judged or self.iteration == total_iterations):
+                if self.writes and (due or judged or self.iteration == total_iterations):
                     saved = self.save()
                     last_save = time.monotonic()
                     if judged:
                         self._log(judge_actor(self.judge, self.actor, saved, "distill", self.iteration,
                                               self.env_steps, self.elapsed), writer, progress_file=False)
         except KeyboardInterrupt:
-            if self.run is not None and self.iteration > 0:
+            if self.writes and self.iteration > 0:
                 self.save()  # the last whole iteration; the rollout in flight is dropped
             raise
         finally:
@@ -214,7 +225,14 @@ class Distiller:
                 bar.close()
         return figures
 
+    @property
+    def writes(self) -> bool:
+        """Whether this distiller writes the stage's checkpoints and progress: rank 0 of a group does."""
+        return self.run is not None and self.group.is_main
+
     def _log(self, figures: dict[str, float], writer, progress_file: bool = True) -> None:
+        if not self.group.is_main:
+            return
         log_iteration(self.run if progress_file else None, writer, self.iteration, self.env_steps, self.elapsed,
                       figures)
 
@@ -254,6 +272,11 @@ class Distiller:
         self.env.rng.bit_generator.state = data["env_rng"]
         if "starts" in data:
             self.env.starts.restore(data["starts"])
+        if not self.group.is_main:  # the checkpoint holds rank 0's streams: the others draw fresh ones of their own
+            seed = self.group.seed(self.seed) + self.iteration
+            self.generator.manual_seed(seed)
+            self.rng = np.random.default_rng(seed)
+            self.env.rng.bit_generator.state = np.random.default_rng(seed + 1).bit_generator.state
         self.env.reset()
         self._set_noise()
         self._obs, _ = self.env.observations()
@@ -263,5 +286,6 @@ class Distiller:
         if path is None:
             return False
         self.restore(checkpoint.load(path), path)
-        trim_progress(self.run, self.iteration)
+        if self.group.is_main:
+            trim_progress(self.run, self.iteration)
         return True

@@ -25,9 +25,11 @@ PPO stage's steps continue the distillation's), and wall-clock time continues ac
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -49,8 +51,10 @@ from opt2skill.rl.pace import AdaptivePace
 from opt2skill.rl.policy import build_actor
 from opt2skill.rl.run import RunSpec, check_run, differences, open_run, trim_progress
 from opt2skill.rl.best import HeldOutJudge
-from opt2skill.rl.session import (TrainRequest, check_checkpoints, held_out_judge, no_announce, open_dataset,
-                                  resume_line, set_threads)
+from opt2skill.rl import processes
+from opt2skill.rl.processes import Group
+from opt2skill.rl.session import (TrainRequest, check_checkpoints, group_size, held_out_judge, no_announce,
+                                  open_dataset, resume_line, set_threads)
 from opt2skill.rl.trainer import Schedule, Trainer
 
 STAGE_DIR = checkpoint.DISTILL_STAGE_DIR
@@ -74,9 +78,12 @@ def _writer(directory: Path, first_step: int):
     return SummaryWriter(str(directory), purge_step=first_step + 1, flush_secs=10)
 
 
-def _open_stage(run: Path, config: DistillConfig, distill_steps: int) -> Path:
-    """RUN/distill with its settings recorded; a rerun must bring the same settings."""
+def _open_stage(run: Path, config: DistillConfig, distill_steps: int, group: Group = processes.ONE) -> Path:
+    """RUN/distill with its settings recorded (by rank 0); a rerun must bring the same settings."""
     stage = Path(run) / STAGE_DIR
+    if not group.is_main:
+        group.barrier()  # rank 0 checks and records the stage
+        return stage
     identity = {"distill": json.loads(json.dumps(dataclasses.asdict(config))), "distill_steps": distill_steps}
     path = stage / STAGE_FILE
     if path.is_file():
@@ -86,6 +93,7 @@ def _open_stage(run: Path, config: DistillConfig, distill_steps: int) -> Path:
     else:
         stage.mkdir(parents=True, exist_ok=True)
         write_json(path, identity)
+    group.barrier()
     return stage
 
 
@@ -98,11 +106,11 @@ def _check_gains(dataset) -> None:
 
 def distill_stage(request: TrainRequest, dataset, robot, config, distill: DistillConfig, distill_steps: int,
                   threads: int, progress: bool, announce: Callable[[str], None] = no_announce,
-                  judge: HeldOutJudge | None = None) -> tuple[dict[str, Any], int]:
+                  judge: HeldOutJudge | None = None, group: Group = processes.ONE) -> tuple[dict[str, Any], int]:
     """Run (or resume) the distillation stage: its final checkpoint's contents and the iteration it
     started from (0 for a fresh stage)."""
-    stage = _open_stage(request.out, distill, distill_steps)
-    batch = request.num_envs * distill.steps_per_env(FRAME_DT)
+    stage = _open_stage(request.out, distill, distill_steps, group)
+    batch = group.size * request.num_envs * distill.steps_per_env(FRAME_DT)
     total = -(-distill_steps // batch)
     latest = checkpoint.latest(stage)
     done = checkpoint.load(latest) if latest is not None else None
@@ -110,25 +118,33 @@ def distill_stage(request: TrainRequest, dataset, robot, config, distill: Distil
         return done, done["iteration"]  # finished before (killed before the PPO stage's first checkpoint)
     env_config = distillation_tracking_config(config, distill)
     bank = ReferenceBank.from_dataset(robot, dataset, env_config.observations.end_effectors)
-    with TrackingEnv(robot, bank, env_config, request.num_envs, seed=request.seed, threads=threads,
-                     device=request.device) as env:
+    with TrackingEnv(robot, bank, env_config, request.num_envs, seed=group.seed(request.seed), threads=threads,
+                     device=_device(request, group)) as env:
         torch.manual_seed(request.seed)
         actor = build_actor(distill.student_ppo(), env.actor_dim, env.critic_dim, env.nu)
         expert = dataset_expert(env, dataset, distill)
-        distiller = Distiller(env, expert, actor, distill, stage, seed=request.seed)
+        distiller = Distiller(env, expert, actor, distill, stage, seed=request.seed, group=group)
         distiller.judge = judge
         if distiller.resume_latest():
             announce(resume_line(request.out, distiller.iteration, checkpoint.latest(stage), "distillation"))
-        else:
+        elif group.is_main:
             trim_progress(stage, 0)
         started = distiller.iteration
-        writer = _writer(Path(request.out) / "tb" / STAGE_DIR, distiller.env_steps)
+        writer = _writer(Path(request.out) / "tb" / STAGE_DIR, distiller.env_steps) if group.is_main else None
         try:
-            distiller.train(total, progress=progress, writer=_EnvStepWriter(writer, lambda: distiller.env_steps),
+            distiller.train(total, progress=progress,
+                            writer=_EnvStepWriter(writer, lambda: distiller.env_steps) if writer else None,
                             checkpoint_every=request.checkpoint_every, checkpoint_minutes=CHECKPOINT_MINUTES)
         finally:
-            writer.close()
+            if writer is not None:
+                writer.close()
+    group.barrier()  # rank 0 has written the stage's last checkpoint
     return checkpoint.load(checkpoint.latest(stage)), started
+
+
+def _device(request: TrainRequest, group: Group) -> str:
+    """The physics device of this process: process r of a group on `cuda:r` with --device cuda."""
+    return f"cuda:{group.local_rank}" if group.size > 1 and request.device == "cuda" else request.device
 
 
 def set_actor_frozen(trainer: Trainer, frozen: bool) -> None:
@@ -166,83 +182,124 @@ def dataset_expert(env: TrackingEnv, dataset, distill: DistillConfig) -> EnvExpe
     return EnvExpert(env, [dataset[int(p)] for p in env.bank.positions], distill.expert)
 
 
-def finetune_trainer(env: TrackingEnv, dataset, distill: DistillConfig, run: Path | None, seed: int) -> Trainer:
+def finetune_trainer(env: TrackingEnv, dataset, distill: DistillConfig, run: Path | None, seed: int,
+                     group: Group = processes.ONE) -> Trainer:
     """The PPO stage's trainer on `env` (the fine-tuning config's), with the expert anchor if enabled."""
-    trainer = Trainer(env, distill.finetune_ppo(), run, seed=seed)
+    trainer = Trainer(env, distill.finetune_ppo(), run, seed=seed, group=group)
     if distill.finetune == "residual":
         residual.freeze_base(trainer.alg.actor, distill.student_ppo().hidden_dims)
     if distill.pace == "adaptive":
         trainer.pace = AdaptivePace(distill.adaptive_step, distill.adaptive_fall_rate)
     if distill.anchor_updates > 0:
-        trainer.anchor = ExpertAnchor(dataset_expert(env, dataset, distill), trainer.alg.actor, distill, seed=seed)
+        trainer.anchor = ExpertAnchor(dataset_expert(env, dataset, distill), trainer.alg.actor, distill, seed=seed,
+                                      group=group)
     return trainer
 
 
-def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool = True,
-          distill: DistillConfig | None = None, announce: Callable[[str], None] = no_announce) -> dict[str, Any]:
-    """Distil (or resume distilling), then train with PPO (or resume it); the last PPO iteration's
-    figures. `announce` is told each stage's resume."""
-    request.check()
-    if request.procs != 1:
-        raise ConfigError("--procs above 1 trains PPO from scratch (--init scratch); distillation and its PPO stage "
-                          "run in one process")
-    if not (isinstance(distill_steps, int) and distill_steps >= 1):
-        raise ConfigError(f"--distill-steps must be a positive number of environment steps, got {distill_steps}")
-    distill = distill or DistillConfig()
-    distill.check()
+@dataclass(frozen=True)
+class _Prepared:
+    """What a distilled training reads and checks before it writes anything."""
+
+    dataset: Any
+    robot: Any
+    task: Any  # the task's tracking config (the distillation stage's base)
+    config: Any  # the PPO stage's, recorded as the run's
+    spec: RunSpec
+    invocation: dict[str, Any]
+
+
+def _prepare(request: TrainRequest, distill: DistillConfig, distill_steps: int, size: int,
+             check_existing: bool = True) -> _Prepared:
+    """As `session.prepare`, for `--init distill`."""
     check_output_dir(request.out)
     dataset, robot = open_dataset(request.dataset)
     _check_gains(dataset)
     task = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
                            request.sampling)
-    judge = held_out_judge(request, dataset, robot, task)  # both stages judged under the task's Table II and noise
-    config = finetune_tracking_config(task, distill)  # the PPO stage's, recorded as the run's
+    config = finetune_tracking_config(task, distill)
     ppo = distill.finetune_ppo()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
                    num_envs=request.num_envs, seed=request.seed,
-                   contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names))
+                   contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names), processes=size)
     invocation = {"command": request.command, "steps": request.steps, "init": "distill", "distill_steps": distill_steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
-    with folder_lock(request.out):  # one lock for both stages: RUN/distill is inside RUN
-        existing = check_run(request.out, spec)  # the configuration first, then what the checkpoints are for
-        if existing and checkpoint.latest(request.out) is not None and not (Path(request.out) / STAGE_DIR).is_dir():
-            raise ConfigError(f"{request.out} is a plain PPO run; choose another --out for --init distill")
-        check_checkpoints(request.out, robot, config)
-        open_run(request.out, spec, invocation)
-        threads = set_threads(request.threads)
+    existing = check_run(request.out, spec) if check_existing else None  # the configuration first, then ...
+    if existing and checkpoint.latest(request.out) is not None and not (Path(request.out) / STAGE_DIR).is_dir():
+        raise ConfigError(f"{request.out} is a plain PPO run; choose another --out for --init distill")
+    return _Prepared(dataset, robot, task, config, spec, invocation)
+
+
+def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool = True,
+          distill: DistillConfig | None = None, announce: Callable[[str], None] = no_announce) -> dict[str, Any]:
+    """Distil (or resume distilling), then train with PPO (or resume it); the last PPO iteration's
+    figures. `announce` is told each stage's resume. With `procs` > 1 both stages run in that many
+    processes, started here (or, under torchrun, this is one of them); rank 0's figures are returned."""
+    request.check()
+    group = processes.from_environment()
+    size = group_size(request, group)
+    if not (isinstance(distill_steps, int) and distill_steps >= 1):
+        raise ConfigError(f"--distill-steps must be a positive number of environment steps, got {distill_steps}")
+    distill = distill or DistillConfig()
+    distill.check()
+    prepared = _prepare(request, distill, distill_steps, size)
+    # Both stages are judged under the task's Table II and noise; its errors come before anything starts.
+    held_out_judge(request, prepared.dataset, prepared.robot, prepared.task)
+    if size > 1 and group.size == 1:
+        return processes.launch(size, _train_in_group, request, distill_steps, distill, progress, announce)
+    processes.join(group)
+    return _train_in_group(request, distill_steps, distill, progress, announce, prepared)
+
+
+def _train_in_group(request: TrainRequest, distill_steps: int, distill: DistillConfig, progress: bool,
+                    announce: Callable[[str], None], prepared: _Prepared | None = None) -> dict[str, Any]:
+    """`train` on this process of its group: rank 0 opens and writes the run, every process trains."""
+    group = processes.from_environment()
+    p = prepared or _prepare(request, distill, distill_steps, group.size, check_existing=group.is_main)
+    judge = held_out_judge(request, p.dataset, p.robot, p.task) if group.is_main else None
+    if not group.is_main:
+        progress, announce = False, no_announce
+    # One lock for both stages (RUN/distill is inside RUN), held by rank 0.
+    with folder_lock(request.out) if group.is_main else contextlib.nullcontext():
+        if group.is_main:
+            check_checkpoints(request.out, p.robot, p.config)
+            open_run(request.out, p.spec, p.invocation)
+        group.barrier()  # the others go on once rank 0 has opened the run
+        threads = set_threads(request.threads_per_process(group.size))
         distilled, resumed = None, {"distill": None, "ppo": None}  # the iteration each stage went on from
         if checkpoint.latest(request.out) is None:  # the PPO stage has not started: distil first
-            distilled, resumed["distill"] = distill_stage(request, dataset, robot, task, distill, distill_steps,
-                                                          threads, progress, announce, judge)
+            distilled, resumed["distill"] = distill_stage(request, p.dataset, p.robot, p.task, distill, distill_steps,
+                                                          threads, progress, announce, judge, group)
         else:
-            _open_stage(request.out, distill, distill_steps)  # same settings as before
-        return _ppo_stage(request, dataset, robot, config, distill, threads, distilled, resumed, progress, announce,
-                          judge)
+            _open_stage(request.out, distill, distill_steps, group)  # same settings as before
+        return _ppo_stage(request, p.dataset, p.robot, p.config, distill, threads, distilled, resumed, progress,
+                          announce, judge, group)
 
 
 def _ppo_stage(request: TrainRequest, dataset, robot, config, distill: DistillConfig, threads: int,
                distilled: dict[str, Any] | None, resumed: dict[str, int | None], progress: bool,
-               announce: Callable[[str], None], judge: HeldOutJudge | None = None) -> dict[str, Any]:
+               announce: Callable[[str], None], judge: HeldOutJudge | None = None,
+               group: Group = processes.ONE) -> dict[str, Any]:
     """PPO from the distilled actor (`distilled`; None: resume the PPO stage's own checkpoints)."""
     offset = checkpoint.load(checkpoint.latest(Path(request.out) / STAGE_DIR))["env_steps"] if distilled is None \
         else distilled["env_steps"]
     bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
-    with TrackingEnv(robot, bank, config, request.num_envs, seed=request.seed, threads=threads,
-                     device=request.device) as env:
-        trainer = finetune_trainer(env, dataset, distill, request.out, request.seed)
+    with TrackingEnv(robot, bank, config, request.num_envs, seed=group.seed(request.seed), threads=threads,
+                     device=_device(request, group)) as env:
+        trainer = finetune_trainer(env, dataset, distill, request.out, request.seed, group)
         trainer.judge = judge
         if trainer.resume_latest():
             announce(resume_line(request.out, trainer.iteration, checkpoint.latest(request.out), "PPO"))
         else:
-            trim_progress(request.out, 0)
+            if group.is_main:
+                trim_progress(request.out, 0)
             start_from_distilled(trainer, distilled)
         resumed["ppo"] = trainer.iteration
         if trainer.iteration >= trainer.iterations_for(request.steps):
             return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True,
                     "distill_env_steps": offset, "resumed_from": resumed}
-        writer = _writer(Path(request.out) / "tb", offset + trainer.env_steps)
-        logged = _EnvStepWriter(writer, lambda: offset + trainer.env_steps)
+        writer = _writer(Path(request.out) / "tb", offset + trainer.env_steps) if group.is_main else None
+        logged = _EnvStepWriter(writer, lambda: offset + trainer.env_steps) if writer is not None else None
         schedule = Schedule(request.steps, request.checkpoint_every)
         figures = {}
         try:
@@ -255,7 +312,8 @@ def _ppo_stage(request: TrainRequest, dataset, robot, config, distill: DistillCo
                     set_actor_frozen(trainer, False)
             figures = trainer.train(schedule, progress=progress, writer=logged) or figures  # {} if the warm-up ended it
         finally:
-            writer.close()
+            if writer is not None:
+                writer.close()
         return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "elapsed": trainer.elapsed,
                 "distill_env_steps": offset, "resumed_from": resumed, "checkpoint": str(checkpoint.latest(request.out)),
                 **figures}

@@ -12,7 +12,7 @@ physics on `cuda:r` with `--device cuda` under `torchrun` on a multi-GPU machine
 otherwise. Two ways to start:
 
     opt2skill train ... --procs 2                      # this machine, 2 processes (spawned here)
-    torchrun --nproc-per-node 8 -m opt2skill train ...  # torchrun's processes (and its rendezvous)
+    torchrun --standalone --nproc-per-node 8 -m opt2skill train ...  # torchrun's processes
 """
 
 from __future__ import annotations
@@ -81,6 +81,27 @@ class Group:
             values = [f[key] for f in everyone if key in f]
             combined[key] = float(np.sum(values) if summed(key) else np.mean(values))
         return combined
+
+    def everyone(self, flag: bool) -> bool:
+        """Whether `flag` holds on every process (a condition all must agree on before a collective step)."""
+        if self.size == 1:
+            return bool(flag)
+        value = torch.tensor([1 if flag else 0], dtype=torch.int64)
+        torch.distributed.all_reduce(value, op=torch.distributed.ReduceOp.MIN)
+        return bool(value.item())
+
+    def share_module(self, module: torch.nn.Module) -> None:
+        """Rank 0's parameters and buffers (normalizer statistics included) on every process."""
+        if self.size > 1:
+            for tensor in module.state_dict().values():
+                torch.distributed.broadcast(tensor, src=0)
+
+    def average_gradients(self, parameters) -> None:
+        """Each parameter's gradient averaged over the group (rsl_rl's bucketed all-reduce)."""
+        if self.size > 1:
+            from rsl_rl.utils.utils import reduce_gradients_in_buckets
+
+            reduce_gradients_in_buckets(parameters, self.size, 25)
 
     def barrier(self) -> None:
         if self.size > 1:

@@ -161,9 +161,10 @@ class Prepared:
     invocation: dict[str, Any]
 
 
-def prepare(request: TrainRequest, size: int) -> Prepared:
+def prepare(request: TrainRequest, size: int, check_existing: bool = True) -> Prepared:
     """The dataset, robot, task and run identity of `request` trained by `size` processes; checked
-    against an existing run (reads only)."""
+    against an existing run (reads only) unless `check_existing` is False (the processes of a group
+    other than rank 0, which may be writing the run already)."""
     check_output_dir(request.out)
     dataset, robot = open_dataset(request.dataset)
     if len(dataset):  # kinematic references (IK, human) and force/torque inputs: refused before any work
@@ -178,7 +179,8 @@ def prepare(request: TrainRequest, size: int) -> Prepared:
                    contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names), processes=size)
     invocation = {"command": request.command, "steps": request.steps,
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
-    check_run(request.out, spec)  # a resume with another configuration: said before the slow loading
+    if check_existing:
+        check_run(request.out, spec)  # a resume with another configuration: said before the slow loading
     return Prepared(dataset, robot, config, ppo, spec, invocation)
 
 
@@ -201,7 +203,7 @@ def _train_in_group(request: TrainRequest, progress: bool, announce: Callable[[s
                     prepared: Prepared | None = None) -> dict[str, Any]:
     """`train` on this process of its group: rank 0 opens and writes the run, every process trains."""
     group = processes.from_environment()
-    prepared = prepared or prepare(request, group.size)
+    prepared = prepared or prepare(request, group.size, check_existing=group.is_main)
     judge = held_out_judge(request, prepared.dataset, prepared.robot, prepared.config) if group.is_main else None
     bank = ReferenceBank.from_dataset(prepared.robot, prepared.dataset, prepared.config.observations.end_effectors)
     with folder_lock(request.out) if group.is_main else contextlib.nullcontext():

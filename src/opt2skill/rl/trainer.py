@@ -74,7 +74,8 @@ class Trainer:
         torch.manual_seed(seed)  # the networks' initialization: the same on every process of a group
         self.venv = TrackingVecEnv(env, ppo.reward_scale or None)
         self.alg = build_algorithm(self.venv, ppo, group)
-        torch.manual_seed(group.seed(seed))  # the actions' noise: a stream of each process's own
+        if not group.is_main:  # the actions' noise: a stream of each process's own (rank 0's goes on as one process's)
+            torch.manual_seed(group.seed(seed))
         self.steps_per_env = ppo.steps_per_env(env.sim.policy_dt)
         self.local_batch = env.num_envs * self.steps_per_env
         self.batch = group.size * self.local_batch  # environment steps per iteration, all processes
