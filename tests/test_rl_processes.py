@@ -185,3 +185,18 @@ def test_distilled_training_runs_both_stages_in_two_processes(squats_with_gains,
     assert read_progress(out / "distill")[-1]["env_steps"] > 0
     assert [p["env_steps"] for p in read_progress(out)] == [384]
     assert result.stdout.count("(last iteration)") == 1
+
+
+def fail_on_rank_one() -> None:
+    from opt2skill.errors import DataError
+
+    if processes.from_environment().rank == 1:
+        raise DataError("rank 1 found a bad file")
+    processes.from_environment().barrier()  # rank 0 waits in a collective: it must be stopped, not hang
+
+
+def test_an_input_error_in_one_process_stops_the_group_and_is_raised_as_itself():
+    from opt2skill.errors import DataError
+
+    with pytest.raises(DataError, match="rank 1 found a bad file"):
+        processes.launch(2, fail_on_rank_one)

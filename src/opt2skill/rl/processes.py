@@ -18,13 +18,14 @@ otherwise. Two ways to start:
 from __future__ import annotations
 
 import os
-import socket
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
+
+from opt2skill.errors import Opt2SkillError
 
 # Figures that are counts or rates of one process's worlds: the group's is their sum, not their mean.
 SUMMED = ("perf/env_steps_per_s", "perf/learner_samples_per_s", "episode/count", "randomization/pushes")
@@ -109,6 +110,7 @@ class Group:
 
 
 ONE = Group(0, 1)
+RENDEZVOUS_FILE = "OPT2SKILL_RENDEZVOUS_FILE"  # set by `launch` for its processes
 
 
 def from_environment() -> Group:
@@ -120,9 +122,12 @@ def from_environment() -> Group:
 
 
 def join(group: Group) -> None:
-    """Join the process group (gloo: the learner is on the CPU). No-op for one process or if joined."""
+    """Join the process group (gloo: the learner is on the CPU). No-op for one process or if joined.
+    `launch`'s processes meet at a file (no port to race for); torchrun's at its own address."""
     if group.size > 1 and not torch.distributed.is_initialized():
-        torch.distributed.init_process_group("gloo", rank=group.rank, world_size=group.size)
+        meeting = os.environ.get(RENDEZVOUS_FILE)
+        init = f"file://{meeting}" if meeting else "env://"
+        torch.distributed.init_process_group("gloo", init_method=init, rank=group.rank, world_size=group.size)
 
 
 def leave(group: Group) -> None:
@@ -134,25 +139,39 @@ def launch(nprocs: int, target: Callable[..., Any], *args: Any) -> Any:
     """Run `target(*args)` in `nprocs` processes of one group on this machine; rank 0's return value.
 
     The processes are spawned (not forked: MuJoCo's and torch's thread pools do not survive a fork)
-    and meet at a free local port. If one fails, the others are stopped and its error is raised."""
-    import torch.multiprocessing as mp
+    and meet at a file in a fresh temporary folder. If one fails, the others are stopped and its
+    error is raised: an input or data error as itself (one line at the command line), else torch's
+    report with the child's traceback."""
+    import tempfile
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    import torch.multiprocessing as mp
+    from torch.multiprocessing.spawn import ProcessException
+
     results = mp.get_context("spawn").SimpleQueue()
-    mp.start_processes(_child, args=(nprocs, port, results, target, args), nprocs=nprocs, join=True,
-                       start_method="spawn")
+    with tempfile.TemporaryDirectory(prefix="opt2skill-group-") as folder:
+        meeting = os.path.join(folder, "rendezvous")
+        try:
+            mp.start_processes(_child, args=(nprocs, meeting, results, target, args), nprocs=nprocs, join=True,
+                               start_method="spawn")
+        except ProcessException:
+            found = None if results.empty() else results.get()
+            if isinstance(found, Opt2SkillError):
+                raise found from None
+            raise
     return results.get()
 
 
-def _child(rank: int, nprocs: int, port: int, results, target: Callable[..., Any], args: tuple) -> None:
-    os.environ.update({"MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port), "WORLD_SIZE": str(nprocs),
-                       "RANK": str(rank), "LOCAL_RANK": str(rank)})
+def _child(rank: int, nprocs: int, meeting: str, results, target: Callable[..., Any], args: tuple) -> None:
+    os.environ.update({RENDEZVOUS_FILE: meeting, "WORLD_SIZE": str(nprocs), "RANK": str(rank),
+                       "LOCAL_RANK": str(rank)})
     group = from_environment()
     join(group)
     try:
-        result = target(*args)
+        try:
+            result = target(*args)
+        except Opt2SkillError as exc:  # for the parent to raise as itself
+            results.put(exc)
+            raise SystemExit(2) from None
         if group.is_main:
             results.put(result)
     finally:
