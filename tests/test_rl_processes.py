@@ -200,3 +200,39 @@ def test_an_input_error_in_one_process_stops_the_group_and_is_raised_as_itself()
 
     with pytest.raises(DataError, match="rank 1 found a bad file"):
         processes.launch(2, fail_on_rank_one)
+
+
+@pytest.mark.slow
+def test_sigterm_stops_every_process_at_an_iteration_end_with_a_checkpoint(squats, tmp_path):
+    import signal
+    import time
+
+    from opt2skill.rl import checkpoint
+
+    out = tmp_path / "run"
+    args = [*CLI, "train", "--dataset", str(squats), "--out", str(out), "--num-envs", "4", "--quiet", "--steps",
+            "10000000", "--procs", "2", "--checkpoint-every", "1000"]
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    end = time.monotonic() + 300
+    while len(read_progress(out)) < 3 and time.monotonic() < end and proc.poll() is None:
+        time.sleep(0.2)
+    children = [int(p) for p in subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
+                                                 text=True).stdout.split()]
+    # The two training processes (multiprocessing's resource tracker, a child too, leaves on its own
+    # once its pipe closes).
+    group = [pid for pid in children if "spawn_main" in Path(f"/proc/{pid}/cmdline").read_text()]
+    assert len(group) == 2
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=300)
+    assert proc.returncode == 130
+
+    def alive(pid: int) -> bool:  # running (not a zombie)
+        try:
+            return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+        except FileNotFoundError:
+            return False
+
+    assert not [pid for pid in group if alive(pid)]  # no process of the group outlives the command
+    # Rank 0 checkpointed the last whole iteration (no periodic one was due): nothing logged is lost.
+    logged = read_progress(out)[-1]["iteration"]
+    assert checkpoint.load(checkpoint.latest(out))["iteration"] == logged >= 3

@@ -17,7 +17,13 @@ app = typer.Typer()
 
 
 def _terminate_as_interrupt() -> None:
-    """SIGTERM ends training like Ctrl-C: the trainer checkpoints what it has before exiting."""
+    """SIGTERM ends training like Ctrl-C: the trainer checkpoints what it has before exiting. A
+    process started by torchrun stops with its group at the end of the iteration (rl.processes)."""
+    from opt2skill.rl import processes
+
+    if processes.from_environment().size > 1:
+        processes.stop_together_on_signals()
+        return
 
     def handler(signum, frame):
         raise KeyboardInterrupt

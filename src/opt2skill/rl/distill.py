@@ -216,6 +216,8 @@ class Distiller:
                     if judged:
                         self._log(judge_actor(self.judge, self.actor, saved, "distill", self.iteration,
                                               self.env_steps, self.elapsed), writer, progress_file=False)
+                if self.group.stop_requested():  # a process of the group was stopped: all end here
+                    raise KeyboardInterrupt
         except KeyboardInterrupt:
             if self.writes and self.iteration > 0:
                 self.save()  # the last whole iteration; the rollout in flight is dropped

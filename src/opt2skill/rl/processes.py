@@ -17,7 +17,9 @@ otherwise. Two ways to start:
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -104,6 +106,16 @@ class Group:
 
             reduce_gradients_in_buckets(parameters, self.size, 25)
 
+    def stop_requested(self) -> bool:
+        """Whether any process of the group was asked to stop (SIGTERM or Ctrl-C, `launch`'s processes):
+        checked by every process at the end of an iteration, so that they stop together there (rank
+        0 then checkpoints) instead of one dying inside a collective the others wait in."""
+        if self.size == 1:
+            return False
+        value = torch.tensor([1 if _stop[0] else 0], dtype=torch.int64)
+        torch.distributed.all_reduce(value, op=torch.distributed.ReduceOp.MAX)
+        return bool(value.item())
+
     def barrier(self) -> None:
         if self.size > 1:
             torch.distributed.barrier()
@@ -141,7 +153,9 @@ def launch(nprocs: int, target: Callable[..., Any], *args: Any) -> Any:
     The processes are spawned (not forked: MuJoCo's and torch's thread pools do not survive a fork)
     and meet at a file in a fresh temporary folder. If one fails, the others are stopped and its
     error is raised: an input or data error as itself (one line at the command line), else torch's
-    report with the child's traceback."""
+    report with the child's traceback. Ctrl-C or SIGTERM here is passed on to every process, which
+    stop together at the end of the iteration in flight (rank 0 checkpoints, as one process does on
+    an interrupt), and waited for."""
     import tempfile
 
     import torch.multiprocessing as mp
@@ -150,9 +164,14 @@ def launch(nprocs: int, target: Callable[..., Any], *args: Any) -> Any:
     results = mp.get_context("spawn").SimpleQueue()
     with tempfile.TemporaryDirectory(prefix="opt2skill-group-") as folder:
         meeting = os.path.join(folder, "rendezvous")
+        context = mp.start_processes(_child, args=(nprocs, meeting, results, target, args), nprocs=nprocs,
+                                     join=False, start_method="spawn")
         try:
-            mp.start_processes(_child, args=(nprocs, meeting, results, target, args), nprocs=nprocs, join=True,
-                               start_method="spawn")
+            while not context.join():
+                pass
+        except KeyboardInterrupt:
+            _interrupt(context.processes)
+            raise
         except ProcessException:
             found = None if results.empty() else results.get()
             if isinstance(found, Opt2SkillError):
@@ -161,7 +180,34 @@ def launch(nprocs: int, target: Callable[..., Any], *args: Any) -> Any:
     return results.get()
 
 
+def _interrupt(children, wait: float = 120.0) -> None:
+    """SIGTERM to each living child (the group stops at its iteration's end), then wait for all."""
+    for child in children:
+        if child.is_alive():
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(child.pid, signal.SIGTERM)
+    for child in children:
+        child.join(wait)
+        if child.is_alive():
+            child.kill()
+
+
+_stop = [False]  # set by a signal in a process of `launch`'s group
+
+
+def _request_stop(signum, frame) -> None:
+    _stop[0] = True
+
+
+def stop_together_on_signals() -> None:
+    """SIGTERM and Ctrl-C make this process of a group stop with the others at the end of the
+    iteration in flight (`Group.stop_requested`), not die inside a collective."""
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(signum, _request_stop)
+
+
 def _child(rank: int, nprocs: int, meeting: str, results, target: Callable[..., Any], args: tuple) -> None:
+    stop_together_on_signals()
     os.environ.update({RENDEZVOUS_FILE: meeting, "WORLD_SIZE": str(nprocs), "RANK": str(rank),
                        "LOCAL_RANK": str(rank)})
     group = from_environment()

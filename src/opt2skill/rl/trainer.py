@@ -244,6 +244,8 @@ class Trainer:
                     if judged:
                         self._log(judge_actor(self.judge, self.alg.actor, saved, "ppo", self.iteration,
                                               self.env_steps, self.elapsed), writer, progress_file=False)
+                if self.group.stop_requested():  # a process of the group was stopped: all end here
+                    raise KeyboardInterrupt
         except KeyboardInterrupt:
             if self.writes and self.iteration > 0 and not self._updating:
                 self.save()  # the networks of the last whole iteration (the rollout in flight is dropped)
