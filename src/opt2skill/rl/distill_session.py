@@ -244,19 +244,24 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     distill.check()
     prepared = _prepare(request, distill, distill_steps, size)
     # Both stages are judged under the task's Table II and noise; its errors come before anything starts.
-    held_out_judge(request, prepared.dataset, prepared.robot, prepared.task)
+    judge = held_out_judge(request, prepared.dataset, prepared.robot, prepared.task)
     if size > 1 and group.size == 1:
         return processes.launch(size, _train_in_group, request, distill_steps, distill, progress, announce)
     processes.join(group)
-    return _train_in_group(request, distill_steps, distill, progress, announce, prepared)
+    return _train_in_group(request, distill_steps, distill, progress, announce, prepared,
+                           judge if group.is_main else None)
 
 
 def _train_in_group(request: TrainRequest, distill_steps: int, distill: DistillConfig, progress: bool,
-                    announce: Callable[[str], None], prepared: _Prepared | None = None) -> dict[str, Any]:
-    """`train` on this process of its group: rank 0 opens and writes the run, every process trains."""
+                    announce: Callable[[str], None], prepared: _Prepared | None = None,
+                    judge: HeldOutJudge | None = None) -> dict[str, Any]:
+    """`train` on this process of its group: rank 0 opens and writes the run, every process trains.
+    Without `prepared` (a process `launch` started) this process reads and checks for itself."""
     group = processes.from_environment()
-    p = prepared or _prepare(request, distill, distill_steps, group.size, check_existing=group.is_main)
-    judge = held_out_judge(request, p.dataset, p.robot, p.task) if group.is_main else None
+    p = prepared
+    if p is None:
+        p = _prepare(request, distill, distill_steps, group.size, check_existing=group.is_main)
+        judge = held_out_judge(request, p.dataset, p.robot, p.task) if group.is_main else None
     if not group.is_main:
         progress, announce = False, no_announce
     # One lock for both stages (RUN/distill is inside RUN), held by rank 0.

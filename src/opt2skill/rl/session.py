@@ -192,19 +192,21 @@ def train(request: TrainRequest, progress: bool = True, announce: Callable[[str]
     group = processes.from_environment()
     size = group_size(request, group)
     prepared = prepare(request, size)
-    held_out_judge(request, prepared.dataset, prepared.robot, prepared.config)  # its errors before anything starts
+    judge = held_out_judge(request, prepared.dataset, prepared.robot, prepared.config)  # its errors before anything starts
     if size > 1 and group.size == 1:
         return processes.launch(size, _train_in_group, request, progress, announce)
     processes.join(group)
-    return _train_in_group(request, progress, announce, prepared)
+    return _train_in_group(request, progress, announce, prepared, judge if group.is_main else None)
 
 
 def _train_in_group(request: TrainRequest, progress: bool, announce: Callable[[str], None],
-                    prepared: Prepared | None = None) -> dict[str, Any]:
-    """`train` on this process of its group: rank 0 opens and writes the run, every process trains."""
+                    prepared: Prepared | None = None, judge: HeldOutJudge | None = None) -> dict[str, Any]:
+    """`train` on this process of its group: rank 0 opens and writes the run, every process trains.
+    Without `prepared` (a process `launch` started) this process reads and checks for itself."""
     group = processes.from_environment()
-    prepared = prepared or prepare(request, group.size, check_existing=group.is_main)
-    judge = held_out_judge(request, prepared.dataset, prepared.robot, prepared.config) if group.is_main else None
+    if prepared is None:
+        prepared = prepare(request, group.size, check_existing=group.is_main)
+        judge = held_out_judge(request, prepared.dataset, prepared.robot, prepared.config) if group.is_main else None
     bank = ReferenceBank.from_dataset(prepared.robot, prepared.dataset, prepared.config.observations.end_effectors)
     with folder_lock(request.out) if group.is_main else contextlib.nullcontext():
         existed = None
