@@ -50,7 +50,7 @@ def kill_when(proc: subprocess.Popen, directory: Path, iteration: int, timeout: 
     """SIGKILL `proc` once `directory` holds a checkpoint of `iteration` or later (no chance to save)."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        # A plain listing: checkpoint.latest would delete the writer's temporary file under its feet.
+        # Whole checkpoints only: a write in progress has a temporary name (rl.checkpoint).
         done = [int(p.stem.split("_")[1]) for p in (directory / "checkpoints").glob("model_*.pt")]
         if done and max(done) >= iteration:
             proc.send_signal(signal.SIGKILL)
