@@ -30,6 +30,9 @@ $(STAMP): pyproject.toml
 		$(BIN)/python -m pip install --quiet "torch==$(TORCH_VERSION)" $(TORCH_PIP_ARGS); \
 	fi
 	$(BIN)/python -m pip install --quiet -e ".[test]"
+	@# The compiled matched integrator (opt2skill.trajopt.native): built now so that tests and workers
+	@# find it; without a C++ compiler the optimizer uses the Python one and this says why.
+	$(BIN)/python -m opt2skill.trajopt.native || true
 	@touch $(STAMP)
 
 bench: $(STAMP)

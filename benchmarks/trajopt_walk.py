@@ -20,6 +20,7 @@ a lever against the defaults on the same walks (docs/trajopt.md, "Speed", has th
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import resource
@@ -34,6 +35,7 @@ from opt2skill.data.validate import ValidationConfig, validate  # noqa: E402
 from opt2skill.errors import SolverError  # noqa: E402
 from opt2skill.model import load_robot  # noqa: E402
 from opt2skill.tasks import get_task  # noqa: E402
+from opt2skill.trajopt import integrator, native  # noqa: E402
 
 
 GAINS = {"solver.keep_gains": True}
@@ -86,11 +88,71 @@ def params_text(params: dict) -> str:
     return ", ".join(f"{k} {params[k]:.3g}" for k in keys)
 
 
+class Tally:
+    """Seconds, iterations and verdicts of the walks solved with one implementation."""
+
+    def __init__(self):
+        self.solve, self.valid, self.total, self.solve_cpu, self.valid_cpu, self.total_cpu = ([] for _ in range(6))
+        self.iterations, self.accepted, self.reasons = [], 0, Counter()
+
+    def walk(self, robot, task, config, index: int, params: dict, seed: int, label: str) -> None:
+        start, start_cpu = time.perf_counter(), time.process_time()
+        try:
+            traj = task.solve(params, seed)
+        except SolverError as exc:
+            self.reasons["solver_failed"] += 1
+            print(f"{index:3d} {label} FAILED ({time.perf_counter() - start:.1f} s): {exc}  [{params_text(params)}]", flush=True)
+            return
+        solved, solved_cpu = time.perf_counter() - start, time.process_time() - start_cpu
+        result = validate(robot, traj, config, task.task_errors(traj))
+        checked, checked_cpu = time.perf_counter() - start - solved, time.process_time() - start_cpu - solved_cpu
+        self.solve.append(solved)
+        self.valid.append(checked)
+        self.total.append(solved + checked)
+        self.solve_cpu.append(solved_cpu)
+        self.valid_cpu.append(checked_cpu)
+        self.total_cpu.append(solved_cpu + checked_cpu)
+        self.iterations.append(traj.solver["iterations"])
+        self.accepted += bool(result["accepted"])
+        self.reasons.update(result["reasons"])
+        verdict = "accepted" if result["accepted"] else "rejected: " + ", ".join(result["reasons"])
+        print(
+            f"{index:3d} {label} solve {solved:6.1f} s (cpu {solved_cpu:5.1f})  validate {checked:5.1f} s (cpu {checked_cpu:4.1f})  "
+            f"iterations {traj.solver['iterations']:4d}  {verdict}  [{params_text(params)}]",
+            flush=True,
+        )
+
+    def report(self, n: int, label: str) -> None:
+        print(f"\nseconds per 14-s walk, one core{', ' + label if label else ''} (load average now {_load()})")
+        print(f"  solve      wall {_stats(self.solve)}   cpu {_stats(self.solve_cpu)}")
+        print(f"  validation wall {_stats(self.valid)}   cpu {_stats(self.valid_cpu)}")
+        print(f"  total      wall {_stats(self.total)}   cpu {_stats(self.total_cpu)}   (target: median <= 5 s)")
+        print(f"iterations   {_stats([float(i) for i in self.iterations])}")
+        print(f"accepted     {self.accepted}/{n} = {100.0 * self.accepted / max(n, 1):.0f} %   (target >= 95 %)")
+        print(f"reasons      {dict(self.reasons) or '-'}")
+
+
+@contextlib.contextmanager
+def matched_integrator(name: str):
+    """Problems built inside use the named implementation of the matched integrator."""
+    if name == integrator.implementation():
+        yield
+        return
+    original = integrator.load_native
+    integrator.load_native = lambda: None  # the Python model (the compiled one is the default where it builds)
+    try:
+        yield
+    finally:
+        integrator.load_native = original
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=20, help="number of walks")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--cold-max-iter", type=int, default=200, help="iteration cap of the cold solve (0: skip it)")
+    parser.add_argument("--against-python", action="store_true",
+                        help="solve each walk with the compiled and with the Python matched integrator, in alternating order")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a walk config override (dotted key, number or true/false), repeatable")
     args = parser.parse_args()
@@ -103,46 +165,21 @@ def main() -> None:
     print(f"walk benchmark: {args.n} walks, seed {args.seed}, {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, {time.strftime('%Y-%m-%d %H:%M')}, "
           f"load average {_load()}" + (f", overrides {overrides}" if overrides else ""))
-    solve_s, valid_s, total_s, iterations = [], [], [], []
-    solve_cpu, valid_cpu, total_cpu = [], [], []
-    accepted, reasons, failures = 0, Counter(), []
+    if args.against_python and native.load() is None:
+        parser.error(f"--against-python needs the compiled integrator: {native.unavailable_reason()}")
+    implementations = ["compiled", "python"] if args.against_python else [integrator.implementation()]
+    print(f"matched integrator: {' against '.join(implementations)}"
+          + (f" (compiled unavailable: {native.unavailable_reason()})" if native.load() is None else ""))
+    tallies = {name: Tally() for name in implementations}
     for index in range(args.n):
         params = space.sample(args.seed, index)
-        start, start_cpu = time.perf_counter(), time.process_time()
-        try:
-            traj = task.solve(params, args.seed)
-        except SolverError as exc:
-            failures.append(index)
-            reasons["solver_failed"] += 1
-            print(f"{index:3d} FAILED ({time.perf_counter() - start:.1f} s): {exc}  [{params_text(params)}]", flush=True)
-            continue
-        solved, solved_cpu = time.perf_counter() - start, time.process_time() - start_cpu
-        result = validate(robot, traj, config, task.task_errors(traj))
-        checked, checked_cpu = time.perf_counter() - start - solved, time.process_time() - start_cpu - solved_cpu
-        solve_s.append(solved)
-        valid_s.append(checked)
-        total_s.append(solved + checked)
-        solve_cpu.append(solved_cpu)
-        valid_cpu.append(checked_cpu)
-        total_cpu.append(solved_cpu + checked_cpu)
-        iterations.append(traj.solver["iterations"])
-        accepted += bool(result["accepted"])
-        reasons.update(result["reasons"])
-        verdict = "accepted" if result["accepted"] else "rejected: " + ", ".join(result["reasons"])
-        print(
-            f"{index:3d} solve {solved:6.1f} s (cpu {solved_cpu:5.1f})  validate {checked:5.1f} s (cpu {checked_cpu:4.1f})  "
-            f"iterations {traj.solver['iterations']:4d}  "
-            f"{verdict}  [{params_text(params)}]",
-            flush=True,
-        )
+        order = implementations if index % 2 == 0 else implementations[::-1]  # neither always runs first
+        for name in order:
+            with matched_integrator(name):
+                tallies[name].walk(robot, task, config, index, params, args.seed, name if args.against_python else "")
+    for name, tally in tallies.items():
+        tally.report(args.n, name if args.against_python else "")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"\nseconds per 14-s walk, one core (load average now {_load()})")
-    print(f"  solve      wall {_stats(solve_s)}   cpu {_stats(solve_cpu)}")
-    print(f"  validation wall {_stats(valid_s)}   cpu {_stats(valid_cpu)}")
-    print(f"  total      wall {_stats(total_s)}   cpu {_stats(total_cpu)}   (target: median <= 5 s)")
-    print(f"iterations   {_stats([float(i) for i in iterations])}")
-    print(f"accepted     {accepted}/{args.n} = {100.0 * accepted / max(args.n, 1):.0f} %   (target >= 95 %)")
-    print(f"reasons      {dict(reasons) or '-'}")
     print(f"peak memory  {peak_mb:.0f} MB (resident, this process)")
     if args.cold_max_iter > 0:
         cold_against_warm(robot, space.sample(args.seed, 0), args.seed, args.cold_max_iter)

@@ -1,4 +1,5 @@
-"""The matched integrator: its step and derivatives on a real contact-dynamics node of a walk."""
+"""The matched integrator (its Python model): its step and derivatives on a real contact-dynamics
+node of a walk. The compiled model is checked against this one in tests/test_trajopt_native.py."""
 
 import gc
 import weakref
@@ -21,8 +22,9 @@ def node():
     plan = task.plan(task.param_space().sample(0, 3))
     problem = task.builder.build(plan.phases, plan.x0, 0.03, integrator="matched")
     k = next(i for i, n in enumerate(problem.nodes) if n.kind == "running" and len(n.contacts) == 1)
-    model = problem.shooting.runningModels[k]
-    assert isinstance(model, MatchedEulerModel) and model.substeps >= 5
+    built = problem.shooting.runningModels[k]  # compiled where it builds (tests/test_trajopt_native.py)
+    assert built.substeps >= 5
+    model = MatchedEulerModel(built.differential, built.dt, built.substeps, share_data=True)
     rng = np.random.default_rng(4)
     x = plan.x0.copy()
     x[3:7] = [0.05, -0.03, 0.2, 1.0] / np.linalg.norm([0.05, -0.03, 0.2, 1.0])  # a turned, tilted base

@@ -13,8 +13,10 @@ cone limits of the rollout make it drift (docs/trajopt.md). This model uses the 
 update at the same cost as Euler (one evaluation of the dynamics): velocities still follow
 `v' = v + a dt`, so the record's inverse-dynamics convention on the knots is unchanged.
 
-Crocoddyl's C++ integrators have no such option, so this is a Python action model around the C++
-differential model. The Python part is the integration and the chain rule, written on views of the
+Crocoddyl's C++ integrators have no such option. `matched_euler` builds the compiled model
+(`trajopt.native`: Crocoddyl's Euler with its position factor set to the matched one) where it
+compiles, and otherwise `MatchedEulerModel`, a Python action model around the C++ differential
+model; the two agree to round-off (tests/test_trajopt_native.py). The Python part is the integration and the chain rule, written on views of the
 data's arrays (taken once) with the floating base's 6x6 blocks from Pinocchio: it adds about 15 us to
 a node's `calc` and 40 us to its `calcDiff` (about 220 us in the contact dynamics), where the first
 version, through `Jintegrate` and attribute copies, added 100 to 130 us.
@@ -25,6 +27,40 @@ from __future__ import annotations
 import crocoddyl
 import numpy as np
 import pinocchio as pin
+
+from opt2skill.trajopt.native import load as load_native
+
+
+def matched_euler(differential, dt: float, substeps: int):
+    """The matched integrator over `differential`: the compiled model, or the Python one sharing its
+    data across the problems built on it (the receding windows)."""
+    if dt <= 0 or substeps < 1:
+        raise ValueError(f"MatchedEulerModel needs dt > 0 and substeps >= 1, got {dt}, {substeps}")
+    native = load_native()
+    if native is not None:
+        return native.MatchedEulerModel(differential, float(dt), int(substeps))
+    return MatchedEulerModel(differential, dt, substeps, share_data=True)
+
+
+def compiled(model) -> bool:
+    """Whether a node model is Crocoddyl C++ (its datas can be handed to a new problem); the Python
+    model's data is refused there (`checkData` cannot be overridden from Python)."""
+    return not isinstance(model, MatchedEulerModel)
+
+
+def single_threaded(problem):
+    """`problem` with its node loop on the calling thread. With only compiled nodes Crocoddyl runs
+    it on an OpenMP team of every core, whatever OMP_NUM_THREADS says; `generate` already runs one
+    worker per core, and two teams on two cores slow each other down. With a Python node in it,
+    Crocoddyl keeps one thread by itself (and warns if asked for another number)."""
+    if problem.nthreads != 1:
+        problem.nthreads = 1
+    return problem
+
+
+def implementation() -> str:
+    """'compiled' or 'python': which matched integrator `matched_euler` builds in this process."""
+    return "compiled" if load_native() is not None else "python"
 
 
 class MatchedEulerModel(crocoddyl.ActionModelAbstract):

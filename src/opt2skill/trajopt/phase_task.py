@@ -25,6 +25,7 @@ from opt2skill.scene.description import Scene
 from opt2skill.trajopt import frames as frames_mod
 from opt2skill.trajopt.config import apply_overrides, config_to_dict
 from opt2skill.trajopt.extract import knots, to_trajectory
+from opt2skill.trajopt.integrator import implementation
 from opt2skill.trajopt.params import Param, ParamSpace
 from opt2skill.trajopt.phases import Phase, Problem, ProblemBuilder
 from opt2skill.trajopt.solver import Solution, riccati_gains, solve
@@ -101,6 +102,8 @@ class PhaseTask(Task):
             "dt": settings.dt,
             "nodes": len(problem.nodes),
             "completion": settings.completion,
+            # which matched integrator ran: the two agree to round-off, not bitwise (trajopt.native)
+            "integrator": settings.integrator + (f" ({implementation()})" if settings.integrator == "matched" else ""),
             **self.solver_extras(),
         }
         traj = to_trajectory(

@@ -30,7 +30,7 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.trajopt.costs import Terms
-from opt2skill.trajopt.integrator import MatchedEulerModel
+from opt2skill.trajopt.integrator import matched_euler, single_threaded
 from opt2skill.trajopt.posture import Posture
 from opt2skill.trajopt.squeeze import SqueezeActuation
 from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights
@@ -179,7 +179,7 @@ class ProblemBuilder:
             for c in phase.contacts:
                 if flat.setdefault(c.name, c.flat) != c.flat:
                     raise ConfigError(f"contact '{c.name}' is flat in one phase and a point in another")
-        shooting = crocoddyl.ShootingProblem(np.asarray(x0, dtype=float), models, terminal)
+        shooting = single_threaded(crocoddyl.ShootingProblem(np.asarray(x0, dtype=float), models, terminal))
 
         def end_model(i: int):
             node = nodes[i]
@@ -242,7 +242,7 @@ class ProblemBuilder:
         if integrator == "euler" or dt == 0.0 or (integrator == "matched" and substeps == 1):
             return crocoddyl.IntegratedActionModelEuler(dam, dt)
         if integrator == "matched":
-            return MatchedEulerModel(dam, dt, substeps, share_data=True)  # receding windows reuse its data
+            return matched_euler(dam, dt, substeps)
         rk = {"rk2": crocoddyl.RKType.two, "rk3": crocoddyl.RKType.three, "rk4": crocoddyl.RKType.four}[integrator]
         return crocoddyl.IntegratedActionModelRK(dam, rk, dt)
 

@@ -1,0 +1,167 @@
+"""Compiled parts of the optimizer: built once against the installed Crocoddyl, loaded if they build.
+
+`matched_euler.cpp` is the matched integrator (`trajopt.integrator`) as a Crocoddyl C++ action
+model: the same step and derivatives, without Python in a node's `calc` and `calcDiff` (30 % and
+about 20 % of their time), and with datas that Crocoddyl's problems accept (the receding windows
+then reuse each node's data instead of allocating one per window).
+
+It is compiled on first use with the C++ compiler of the machine (`$CXX`, else `c++`) against the
+headers that the pinned wheels ship (crocoddyl, pinocchio, boost; Eigen from `cmeel-eigen`), into
+`<cache>/native/<key>/`, where the key hashes the source, the compiled stack's versions and the
+Python ABI. `make install` builds it, so tests and workers find it ready. Processes that race to
+build it take a file lock; the module appears by atomic rename.
+
+Where it cannot be built (no compiler, no Python headers) or `OPT2SKILL_NATIVE=0` is set, `load()`
+returns None and says why once in the log; the callers then use the Python implementation, whose
+results agree to round-off (tests/test_trajopt_native.py). `python -m opt2skill.trajopt.native`
+builds it and prints where, or why not (exit status 1).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import importlib.util
+import logging
+import os
+import shlex
+import subprocess
+import sys
+import sysconfig
+from importlib import metadata
+from pathlib import Path
+from types import ModuleType
+
+log = logging.getLogger(__name__)
+
+MODULE = "_matched_euler"
+SOURCE = Path(__file__).with_name("matched_euler.cpp")
+STACK = ("crocoddyl", "pin", "libpinocchio", "cmeel-boost", "cmeel-eigen")  # what the binary depends on
+
+_loaded: ModuleType | None = None
+_reason: str | None = None  # why it is not loaded, once tried
+
+
+class NativeBuildError(RuntimeError):
+    """The extension could not be compiled here; the message says what was missing or what failed."""
+
+
+def cache_root() -> Path:
+    """`$OPT2SKILL_CACHE`, else `$XDG_CACHE_HOME/opt2skill`, else `~/.cache/opt2skill`."""
+    if os.environ.get("OPT2SKILL_CACHE"):
+        return Path(os.environ["OPT2SKILL_CACHE"])
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "opt2skill"
+
+
+def _versions() -> dict[str, str]:
+    out = {}
+    for name in STACK:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "missing"
+    return out
+
+
+def build_key() -> str:
+    """Changes whenever the source, the compiled stack or the Python ABI does."""
+    h = hashlib.sha256(SOURCE.read_bytes())
+    h.update(repr(sorted(_versions().items())).encode())
+    h.update((sys.implementation.cache_tag + sysconfig.get_config_var("EXT_SUFFIX")).encode())
+    return h.hexdigest()[:16]
+
+
+def stack_prefix() -> Path:
+    """The folder the compiled stack's wheels install into (include/, lib/)."""
+    import crocoddyl
+
+    for parent in Path(crocoddyl.__file__).resolve().parents:
+        if (parent / "include" / "crocoddyl").is_dir() and (parent / "lib").is_dir():
+            return parent
+    raise NativeBuildError(f"no include/crocoddyl above {crocoddyl.__file__}: the crocoddyl wheel ships no headers")
+
+
+def compile_command(prefix: Path, target: Path) -> list[str]:
+    include = prefix / "include"
+    python_include = Path(sysconfig.get_paths()["include"])
+    for need, what in ((include / "eigen3" / "Eigen" / "Core", "Eigen headers (pip install cmeel-eigen)"),
+                       (python_include / "Python.h", "Python headers (python3-dev)"),
+                       (include / "boost" / "python.hpp", "boost.python headers (cmeel-boost)")):
+        if not need.exists():
+            raise NativeBuildError(f"{what} not found: {need}")
+    boost_python = f"boost_python{sys.version_info.major}{sys.version_info.minor}"
+    cxx = shlex.split(os.environ.get("CXX", "c++"))
+    return [
+        *cxx, "-O2", "-std=c++17", "-shared", "-fPIC", "-DNDEBUG", "-w",
+        f"-I{include}", f"-I{include / 'eigen3'}", f"-I{python_include}",
+        str(SOURCE), "-o", str(target),
+        f"-L{prefix / 'lib'}", "-lcrocoddyl", "-lpinocchio_default", f"-l{boost_python}",
+        f"-Wl,-rpath,{prefix / 'lib'}",
+    ]
+
+
+def build(force: bool = False) -> Path:
+    """The compiled module's path, compiling it first unless a build for this key exists."""
+    folder = cache_root() / "native" / build_key()
+    target = folder / (MODULE + sysconfig.get_config_var("EXT_SUFFIX"))
+    if target.exists() and not force:
+        return target
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be building it right now
+        if target.exists() and not force:
+            return target
+        partial = folder / f".{MODULE}.{os.getpid()}.so"
+        command = compile_command(stack_prefix(), partial)
+        try:
+            result = subprocess.run(command, capture_output=True, text=True, timeout=600)
+        except FileNotFoundError:
+            raise NativeBuildError(f"no C++ compiler: {command[0]!r} not found (set CXX)") from None
+        if result.returncode != 0:
+            partial.unlink(missing_ok=True)
+            tail = (result.stderr or result.stdout).strip().splitlines()[-5:]
+            raise NativeBuildError(f"compiling {SOURCE.name} failed ({command[0]}): " + " | ".join(tail))
+        os.replace(partial, target)
+    return target
+
+
+def _import(path: Path) -> ModuleType:
+    import crocoddyl  # noqa: F401  loads the stack's shared libraries, which the module links against
+
+    spec = importlib.util.spec_from_file_location(MODULE, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def load() -> ModuleType | None:
+    """The compiled module, or None (the reason in `unavailable_reason()`, logged once)."""
+    global _loaded, _reason
+    if _loaded is not None or _reason is not None:
+        return _loaded
+    if os.environ.get("OPT2SKILL_NATIVE", "1") == "0":
+        _reason = "disabled by OPT2SKILL_NATIVE=0"
+        return None
+    try:
+        _loaded = _import(build())
+    except (NativeBuildError, ImportError, OSError) as exc:
+        _reason = str(exc)
+        log.warning("compiled matched integrator unavailable (%s); using the Python one, about 20 %% slower", _reason)
+    return _loaded
+
+
+def unavailable_reason() -> str | None:
+    load()
+    return _reason
+
+
+def main() -> int:
+    try:
+        path = build()
+        _import(path)
+    except (NativeBuildError, ImportError, OSError) as exc:
+        print(f"opt2skill: the compiled matched integrator was not built: {exc}", file=sys.stderr)
+        return 1
+    print(f"opt2skill: compiled matched integrator ready: {path}")
+    return 0

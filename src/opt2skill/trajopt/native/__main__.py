@@ -1,0 +1,5 @@
+import sys
+
+from opt2skill.trajopt.native import main
+
+sys.exit(main())

@@ -1,0 +1,148 @@
+"""The compiled matched integrator (trajopt.native): it builds where a C++ compiler is, it is the
+Python model's step and derivatives to round-off, the optimizer uses it, and a failed build is one
+clear reason with the Python model taking over."""
+
+import os
+import shutil
+import subprocess
+import sys
+
+import crocoddyl
+import numpy as np
+import pytest
+
+from opt2skill.model import load_robot
+from opt2skill.tasks import get_task
+from opt2skill.trajopt import integrator, native
+from opt2skill.trajopt.integrator import MatchedEulerModel
+
+needs_compiler = pytest.mark.skipif(shutil.which(os.environ.get("CXX", "c++")) is None, reason="no C++ compiler")
+
+
+@pytest.fixture(scope="module")
+def walk():
+    robot = load_robot("digit")
+    task = get_task("walk", robot, {"steps": 2, "duration": 1.5})
+    plan = task.plan(task.param_space().sample(0, 3))
+    problem = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
+    return task, plan, problem
+
+
+def random_state(plan, seed: int):
+    rng = np.random.default_rng(seed)
+    x = plan.x0.copy()
+    q = np.array([0.05, -0.03, 0.2, 1.0]) + rng.normal(scale=0.05, size=4)
+    x[3:7] = q / np.linalg.norm(q)  # a turned, tilted base: the floating base's blocks matter
+    x[7:27] += rng.normal(scale=0.1, size=20)
+    x[27:] = rng.normal(scale=0.8, size=26)
+    return x, rng.normal(scale=20.0, size=20)
+
+
+@needs_compiler
+def test_it_builds_here_and_the_optimizer_uses_it(walk):
+    """With a compiler on the machine (as in CI) a missing module is a failure, not a skip."""
+    assert native.load() is not None, native.unavailable_reason()
+    assert integrator.implementation() == "compiled"
+    _, _, problem = walk
+    running = [m for m, n in zip(problem.shooting.runningModels, problem.nodes) if n.kind == "running"]
+    compiled = [m for m in running if isinstance(m, native.load().MatchedEulerModel)]
+    assert len(compiled) == len(running) > 20
+    assert problem.shooting.nthreads == 1  # one worker per core: no OpenMP team inside a problem
+
+
+@needs_compiler
+@pytest.mark.parametrize("contacts", [1, 2])
+def test_step_and_derivatives_are_the_python_models(walk, contacts):
+    _, plan, problem = walk
+    k = next(i for i, n in enumerate(problem.nodes) if n.kind == "running" and len(n.contacts) == contacts)
+    built = problem.shooting.runningModels[k]
+    fast = native.load().MatchedEulerModel(built.differential, built.dt, built.substeps)
+    slow = MatchedEulerModel(built.differential, built.dt, built.substeps)
+    assert fast.substeps == slow.substeps >= 5 and fast.position_dt2 == pytest.approx(slow.position_dt2, rel=1e-15)
+    np.testing.assert_array_equal(fast.u_lb, slow.u_lb)
+    fd, sd = fast.createData(), slow.createData()
+    for seed in range(3):
+        x, u = random_state(plan, seed)
+        for model, data in ((fast, fd), (slow, sd)):
+            model.calc(data, x, u)
+            model.calcDiff(data, x, u)
+        for name in ("xnext", "Fx", "Fu", "Lx", "Lu", "Lxx", "Lxu", "Luu"):
+            mine, theirs = np.asarray(getattr(fd, name)), np.asarray(getattr(sd, name))
+            assert np.abs(mine - theirs).max() <= 1e-12 * max(1.0, np.abs(theirs).max()), name
+        assert fd.cost == pytest.approx(sd.cost, rel=1e-14)
+    # Crocoddyl's own Euler differs from both: the position factor is really changed.
+    euler = crocoddyl.IntegratedActionModelEuler(built.differential, built.dt)
+    ed = euler.createData()
+    euler.calc(ed, x, u)
+    assert np.abs(np.asarray(ed.xnext)[7:27] - np.asarray(fd.xnext)[7:27]).max() > 1e-4
+    with pytest.raises(Exception, match="substeps"):
+        native.load().MatchedEulerModel(built.differential, built.dt, 0)
+
+
+@needs_compiler
+def test_a_walk_solves_to_the_same_plan_with_either(walk, monkeypatch):
+    """Two receding windows of a real walk, solved with each implementation: the same iterations
+    and the same plan to round-off."""
+    task, plan, _ = walk
+    from opt2skill.trajopt.receding import solve_receding
+    from opt2skill.trajopt.skills.stride_guess import StrideGuess
+
+    def solve():
+        phases = task._with_standard_costs(plan)
+        problem = task.builder.build(phases, plan.x0, 0.03, integrator="matched")
+        return solve_receding(problem, task.config.solver, window=0.6, commit=0.3, max_iter=6,
+                              first_max_iter=10, extend=StrideGuess(problem, plan.context))
+
+    fast = solve()
+    monkeypatch.setattr(integrator, "load_native", lambda: None)
+    assert integrator.implementation() == "python"
+    slow = solve()
+    assert fast.iterations == slow.iterations > 10
+    # Round-off grows through the iterations (2e-6 seen here); a wrong integrator moves a node by 1e-4 or more.
+    assert np.abs(fast.xs - slow.xs).max() < 1e-4
+    assert fast.cost == pytest.approx(slow.cost, rel=1e-6)
+
+
+def test_a_failed_build_is_one_reason_and_the_python_model_takes_over(tmp_path):
+    """No compiler: `load()` gives None with the reason, `python -m opt2skill.trajopt.native` exits 1
+    with one line naming it, and the optimizer builds the Python model."""
+    env = {**os.environ, "OPT2SKILL_CACHE": str(tmp_path), "CXX": str(tmp_path / "no-such-compiler")}
+    code = ("from opt2skill.trajopt import native, integrator\n"
+            "assert native.load() is None\n"
+            "print(native.unavailable_reason())\n"
+            "print(integrator.implementation())")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    reason, used = out.stdout.strip().splitlines()
+    assert "no C++ compiler" in reason and "no-such-compiler" in reason and used == "python"
+    assert "using the Python one" in out.stderr  # logged once, as a warning
+    cli = subprocess.run([sys.executable, "-m", "opt2skill.trajopt.native"], env=env, capture_output=True,
+                         text=True, timeout=120)
+    assert cli.returncode == 1
+    assert cli.stderr.count("\n") == 1 and "no C++ compiler" in cli.stderr
+    assert not list(tmp_path.rglob("*.so"))  # nothing half-built is left to be loaded later
+
+
+def test_it_can_be_turned_off(tmp_path):
+    env = {**os.environ, "OPT2SKILL_NATIVE": "0"}
+    code = "from opt2skill.trajopt import integrator, native\nprint(integrator.implementation(), native.unavailable_reason())"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "python disabled by OPT2SKILL_NATIVE=0"
+
+
+@needs_compiler
+def test_a_build_is_kept_per_source_and_stack(tmp_path, monkeypatch):
+    """The build is cached under a key of the source and the stack's versions; a compile error
+    names the file and keeps nothing."""
+    monkeypatch.setenv("OPT2SKILL_CACHE", str(tmp_path))
+    first = native.build()
+    stamp = first.stat().st_mtime_ns
+    assert native.build() == first and first.stat().st_mtime_ns == stamp  # not compiled again
+    assert native.build_key() in str(first)
+    broken = tmp_path / "broken.cpp"
+    broken.write_text("this is not C++\n")
+    monkeypatch.setattr(native, "SOURCE", broken)
+    assert native.build_key() not in str(first)
+    with pytest.raises(native.NativeBuildError, match="compiling broken.cpp failed"):
+        native.build()
+    assert list(tmp_path.rglob("*.so")) == [first]
