@@ -75,8 +75,10 @@ def test_step_and_derivatives_are_the_python_models(walk, contacts):
     ed = euler.createData()
     euler.calc(ed, x, u)
     assert np.abs(np.asarray(ed.xnext)[7:27] - np.asarray(fd.xnext)[7:27]).max() > 1e-4
-    with pytest.raises(Exception, match="substeps"):
+    with pytest.raises(ValueError, match="substeps >= 1, got 0.03"):
         native.load().MatchedEulerModel(built.differential, built.dt, 0)
+    with pytest.raises(ValueError, match="needs a differential action model"):  # not a crash in C++
+        native.load().MatchedEulerModel(None, built.dt, 6)
 
 
 @needs_compiler

@@ -10,18 +10,27 @@
 
 #include <memory>
 #include <stdexcept>
+#include <string>
 
 namespace bp = boost::python;
 using crocoddyl::DifferentialActionModelAbstract;
 using crocoddyl::IntegratedActionModelEuler;
 
+// Checked before the base class's constructor, which dereferences the model.
+static std::shared_ptr<DifferentialActionModelAbstract> checked(std::shared_ptr<DifferentialActionModelAbstract> model,
+                                                                double dt, int substeps) {
+  if (!model) throw std::invalid_argument("MatchedEulerModel needs a differential action model, got None");
+  if (!(dt > 0.0) || substeps < 1) {
+    throw std::invalid_argument("MatchedEulerModel needs dt > 0 and substeps >= 1, got " + std::to_string(dt) +
+                                ", " + std::to_string(substeps));
+  }
+  return model;
+}
+
 class MatchedEuler : public IntegratedActionModelEuler {
  public:
   MatchedEuler(std::shared_ptr<DifferentialActionModelAbstract> model, double dt, int substeps)
-      : IntegratedActionModelEuler(model, dt, false), substeps_(substeps) {
-    if (!(dt > 0.0) || substeps < 1) {
-      throw std::invalid_argument("MatchedEulerModel needs dt > 0 and substeps >= 1");
-    }
+      : IntegratedActionModelEuler(checked(model, dt, substeps), dt, false), substeps_(substeps) {
     time_step2_ = dt * dt * (substeps + 1) / (2.0 * substeps);
   }
   int substeps() const { return substeps_; }
