@@ -25,6 +25,7 @@ import importlib.util
 import logging
 import os
 import shlex
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -82,19 +83,33 @@ def stack_prefix() -> Path:
     raise NativeBuildError(f"no include/crocoddyl above {crocoddyl.__file__}: the crocoddyl wheel ships no headers")
 
 
-def compile_command(prefix: Path, target: Path) -> list[str]:
+def compiler() -> list[str]:
+    return shlex.split(os.environ.get("CXX", "c++"))
+
+
+def missing_prerequisite() -> str | None:
+    """What this machine lacks for the build (the first thing found), or None."""
+    if shutil.which(compiler()[0]) is None:
+        return f"no C++ compiler: {compiler()[0]!r} not found (set CXX)"
+    try:
+        prefix = stack_prefix()
+    except NativeBuildError as exc:
+        return str(exc)
     include = prefix / "include"
-    python_include = Path(sysconfig.get_paths()["include"])
-    for need, what in ((include / "eigen3" / "Eigen" / "Core", "Eigen headers (pip install cmeel-eigen)"),
-                       (python_include / "Python.h", "Python headers (python3-dev)"),
+    for need, what in ((Path(sysconfig.get_paths()["include"]) / "Python.h", "Python headers (python3-dev)"),
+                       (include / "eigen3" / "Eigen" / "Core", "Eigen headers (pip install cmeel-eigen)"),
                        (include / "boost" / "python.hpp", "boost.python headers (cmeel-boost)")):
         if not need.exists():
-            raise NativeBuildError(f"{what} not found: {need}")
+            return f"{what} not found: {need}"
+    return None
+
+
+def compile_command(prefix: Path, target: Path) -> list[str]:
+    include = prefix / "include"
     boost_python = f"boost_python{sys.version_info.major}{sys.version_info.minor}"
-    cxx = shlex.split(os.environ.get("CXX", "c++"))
     return [
-        *cxx, "-O2", "-std=c++17", "-shared", "-fPIC", "-DNDEBUG", "-w",
-        f"-I{include}", f"-I{include / 'eigen3'}", f"-I{python_include}",
+        *compiler(), "-O2", "-std=c++17", "-shared", "-fPIC", "-DNDEBUG", "-w",
+        f"-I{include}", f"-I{include / 'eigen3'}", f"-I{sysconfig.get_paths()['include']}",
         str(SOURCE), "-o", str(target),
         f"-L{prefix / 'lib'}", "-lcrocoddyl", "-lpinocchio_default", f"-l{boost_python}",
         f"-Wl,-rpath,{prefix / 'lib'}",
@@ -102,7 +117,7 @@ def compile_command(prefix: Path, target: Path) -> list[str]:
 
 
 def build(force: bool = False) -> Path:
-    """The compiled module's path, compiling it first unless a build for this key exists."""
+    """The compiled module's path, compiling it first unless a build for this key exists (or `force`)."""
     folder = cache_root() / "native" / build_key()
     target = folder / (MODULE + sysconfig.get_config_var("EXT_SUFFIX"))
     if target.exists() and not force:
@@ -112,12 +127,12 @@ def build(force: bool = False) -> Path:
         fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be building it right now
         if target.exists() and not force:
             return target
+        missing = missing_prerequisite()
+        if missing:
+            raise NativeBuildError(missing)
         partial = folder / f".{MODULE}.{os.getpid()}.so"
         command = compile_command(stack_prefix(), partial)
-        try:
-            result = subprocess.run(command, capture_output=True, text=True, timeout=600)
-        except FileNotFoundError:
-            raise NativeBuildError(f"no C++ compiler: {command[0]!r} not found (set CXX)") from None
+        result = subprocess.run(command, capture_output=True, text=True, timeout=600)
         if result.returncode != 0:
             partial.unlink(missing_ok=True)
             tail = (result.stderr or result.stdout).strip().splitlines()[-5:]
@@ -144,7 +159,10 @@ def load() -> ModuleType | None:
         _reason = "disabled by OPT2SKILL_NATIVE=0"
         return None
     try:
-        _loaded = _import(build())
+        try:
+            _loaded = _import(build())
+        except ImportError:  # a damaged build in the cache (a killed copy, a full disk): built again, once
+            _loaded = _import(build(force=True))
     except (NativeBuildError, ImportError, OSError) as exc:
         _reason = str(exc)
         log.warning("compiled matched integrator unavailable (%s); using the Python one, about 20 %% slower", _reason)
