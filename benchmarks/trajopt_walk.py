@@ -93,7 +93,7 @@ class Tally:
 
     def __init__(self):
         self.solve, self.valid, self.total, self.solve_cpu, self.valid_cpu, self.total_cpu = ([] for _ in range(6))
-        self.iterations, self.accepted, self.reasons = [], 0, Counter()
+        self.iterations, self.costs, self.accepted, self.reasons = [], [], 0, Counter()
 
     def walk(self, robot, task, config, index: int, params: dict, seed: int, label: str) -> None:
         start, start_cpu = time.perf_counter(), time.process_time()
@@ -113,12 +113,13 @@ class Tally:
         self.valid_cpu.append(checked_cpu)
         self.total_cpu.append(solved_cpu + checked_cpu)
         self.iterations.append(traj.solver["iterations"])
+        self.costs.append(traj.solver["cost"])
         self.accepted += bool(result["accepted"])
         self.reasons.update(result["reasons"])
         verdict = "accepted" if result["accepted"] else "rejected: " + ", ".join(result["reasons"])
         print(
             f"{index:3d} {label} solve {solved:6.1f} s (cpu {solved_cpu:5.1f})  validate {checked:5.1f} s (cpu {checked_cpu:4.1f})  "
-            f"iterations {traj.solver['iterations']:4d}  {verdict}  [{params_text(params)}]",
+            f"iterations {traj.solver['iterations']:4d}  cost {traj.solver['cost']:8.1f}  {verdict}  [{params_text(params)}]",
             flush=True,
         )
 
@@ -128,6 +129,7 @@ class Tally:
         print(f"  validation wall {_stats(self.valid)}   cpu {_stats(self.valid_cpu)}")
         print(f"  total      wall {_stats(self.total)}   cpu {_stats(self.total_cpu)}   (target: median <= 5 s)")
         print(f"iterations   {_stats([float(i) for i in self.iterations])}")
+        print(f"final cost   {_stats(self.costs)}   (the assembled walk's; lower is a better plan)")
         print(f"accepted     {self.accepted}/{n} = {100.0 * self.accepted / max(n, 1):.0f} %   (target >= 95 %)")
         print(f"reasons      {dict(self.reasons) or '-'}")
 
