@@ -15,6 +15,9 @@ a lever against the defaults on the same walks (docs/trajopt.md, "Speed", has th
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --seed 0
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --seed 0 --set receding.max_iter=10
+
+`--against-python` solves every walk with the compiled matched integrator and with its Python model,
+in alternating order, and reports both (docs/trajopt.md, "Speed: the compiled matched integrator").
 """
 
 from __future__ import annotations
