@@ -79,6 +79,9 @@ def test_step_and_derivatives_are_the_python_models(walk, contacts):
         native.load().MatchedEulerModel(built.differential, built.dt, 0)
     with pytest.raises(ValueError, match="needs a differential action model"):  # not a crash in C++
         native.load().MatchedEulerModel(None, built.dt, 6)
+    with pytest.raises(AttributeError):  # Crocoddyl's dt setter would silently make it plain Euler
+        fast.dt = 0.02
+    assert fast.dt == built.dt and fast.position_dt2 == pytest.approx(slow.position_dt2, rel=1e-15)
 
 
 @needs_compiler

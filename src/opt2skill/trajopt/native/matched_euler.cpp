@@ -47,6 +47,8 @@ BOOST_PYTHON_MODULE(_matched_euler) {
       "Semi-implicit Euler over dt with the position update of `substeps` Euler substeps (C++).",
       bp::init<std::shared_ptr<DifferentialActionModelAbstract>, double, int>(
           bp::args("self", "differential", "dt", "substeps")))
+      // Read-only: Crocoddyl's setter would reset the position factor to dt^2 without a word.
+      .add_property("dt", &MatchedEuler::get_dt, "the node's time step (read-only)")
       .add_property("substeps", &MatchedEuler::substeps, "Euler substeps per node whose position update this matches")
       .add_property("position_dt2", &MatchedEuler::position_dt2, "the position update's factor of the acceleration");
 }
