@@ -5,6 +5,7 @@ clear reason with the Python model taking over."""
 import os
 import subprocess
 import sys
+import tempfile
 
 import crocoddyl
 import numpy as np
@@ -165,3 +166,12 @@ def test_a_damaged_build_in_the_cache_is_built_again(tmp_path):
     out = subprocess.run([sys.executable, "-c", use], env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and out.stdout.strip() == "compiled", out.stderr
     assert so.read_bytes()[:4] == b"\x7fELF"
+
+
+@needs_compiler
+def test_an_unwritable_cache_builds_in_the_temporary_folder(tmp_path, monkeypatch):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("OPT2SKILL_CACHE", str(blocker / "cache"))  # under a file: cannot be created
+    path = native.build()
+    assert path.exists() and path.is_relative_to(tempfile.gettempdir()) and not path.is_relative_to(blocker)

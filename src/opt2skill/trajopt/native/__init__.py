@@ -7,9 +7,10 @@ then reuse each node's data instead of allocating one per window).
 
 It is compiled on first use with the C++ compiler of the machine (`$CXX`, else `c++`) against the
 headers that the pinned wheels ship (crocoddyl, pinocchio, boost; Eigen from `cmeel-eigen`), into
-`<cache>/native/<key>/`, where the key hashes the source, the compiled stack's versions and the
-Python ABI. `make install` builds it, so tests and workers find it ready. Processes that race to
-build it take a file lock; the module appears by atomic rename.
+`<cache>/native/<key>/` (the temporary folder's `opt2skill-<uid>/` where the cache is not
+writable), where the key hashes the source, the compiled stack's versions and the Python ABI.
+`make install` builds it, so tests and workers find it ready. Processes that race to build it take
+a file lock; the module appears by atomic rename.
 
 Where it cannot be built (no compiler, no Python headers) or `OPT2SKILL_NATIVE=0` is set, `load()`
 returns None and says why once in the log; the callers then use the Python implementation, whose
@@ -29,6 +30,7 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+import tempfile
 from importlib import metadata
 from pathlib import Path
 from types import ModuleType
@@ -116,13 +118,26 @@ def compile_command(prefix: Path, target: Path) -> list[str]:
     ]
 
 
+def build_folder() -> Path:
+    """This build's folder in the cache, created; in the temporary folder if the cache is not writable."""
+    fallback = Path(tempfile.gettempdir()) / f"opt2skill-{os.getuid()}"
+    for root in (cache_root(), fallback):
+        folder = root / "native" / build_key()
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(folder, os.W_OK):
+            return folder
+    raise NativeBuildError(f"no writable folder for the build: {cache_root()} nor {fallback}")
+
+
 def build(force: bool = False) -> Path:
     """The compiled module's path, compiling it first unless a build for this key exists (or `force`)."""
-    folder = cache_root() / "native" / build_key()
+    folder = build_folder()
     target = folder / (MODULE + sysconfig.get_config_var("EXT_SUFFIX"))
     if target.exists() and not force:
         return target
-    folder.mkdir(parents=True, exist_ok=True)
     with open(folder / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # another process may be building it right now
         if target.exists() and not force:
