@@ -174,14 +174,20 @@ def load() -> ModuleType | None:
         _reason = "disabled by OPT2SKILL_NATIVE=0"
         return None
     try:
-        try:
-            _loaded = _import(build())
-        except ImportError:  # a damaged build in the cache (a killed copy, a full disk): built again, once
-            _loaded = _import(build(force=True))
+        _loaded, _ = _built_and_imported()
     except (NativeBuildError, ImportError, OSError) as exc:
         _reason = str(exc)
-        log.warning("compiled matched integrator unavailable (%s); using the Python one, about 20 %% slower", _reason)
+        log.warning("compiled matched integrator unavailable (%s); using the Python one, about 15 %% slower", _reason)
     return _loaded
+
+
+def _built_and_imported() -> tuple[ModuleType, Path]:
+    path = build()
+    try:
+        return _import(path), path
+    except ImportError:  # a damaged build in the cache (a killed copy, a full disk): built again, once
+        path = build(force=True)
+        return _import(path), path
 
 
 def unavailable_reason() -> str | None:
@@ -191,8 +197,7 @@ def unavailable_reason() -> str | None:
 
 def main() -> int:
     try:
-        path = build()
-        _import(path)
+        _, path = _built_and_imported()
     except (NativeBuildError, ImportError, OSError) as exc:
         print(f"opt2skill: the compiled matched integrator was not built: {exc}", file=sys.stderr)
         return 1
