@@ -134,6 +134,26 @@ def test_bad_input_exits_2_with_one_clear_line(killed_and_resumed, tmp_path):
     assert sorted(p.name for p in killed_and_resumed.rglob("*")) == before
 
 
+def test_task_config_overrides_reach_the_solve_and_the_identity(tmp_path):
+    """`--config key=value` sets the task config of every solve (the record's provenance says so);
+    it is part of the dataset's identity, and a bad key or form is one line, exit 2, nothing written."""
+    out = tmp_path / "tuned"
+    result = cli("generate", "squat", "--n", "1", "--workers", "1", "--out", str(out), "--quiet",
+                 "--config", "solver.reg_increase_below=0.2", "--config", "solver.keep_gains=false")
+    assert result.returncode == 0, result.stderr
+    record = read_trajectory(next((out / "trajectories").glob("*.h5")))
+    assert record.provenance["task_config"]["solver"]["reg_increase_below"] == 0.2
+    assert read_json(out / "dataset.json", "header")["identity"]["task_config"]["solver.reg_increase_below"] == 0.2
+    result = cli("generate", "squat", "--n", "2", "--workers", "1", "--out", str(out))
+    assert result.returncode == 2 and "task_config: dataset has" in result.stderr
+    for item, message in (("solver.nope=1", "unknown config key 'solver.nope'; keys here: dt,"),
+                          ("solver.reg_increase_below", "--config expects key=value"),
+                          ("solver.reg_increase_below=0.7", "solver.reg_increase_below must be in (0, 0.5)")):
+        result = cli("generate", "squat", "--n", "1", "--out", str(tmp_path / "x"), "--config", item)
+        assert result.returncode == 2 and message in result.stderr and result.stderr.count("\n") == 1, result.stderr
+        assert not (tmp_path / "x").exists()
+
+
 class _CrashOnLoad:
     """Unpickling this in a worker kills the worker process as it receives its job."""
 

@@ -1,11 +1,14 @@
 """A short real walk (4 steps): dynamics, limits, contacts, standing start and end, task checks."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from opt2skill.data.checks import frame_dynamics_residual, site_poses, touchdown_frames
 from opt2skill.model import load_robot
 from opt2skill.tasks import get_task
+from opt2skill.trajopt.solver import solve_shooting
 
 PARAMS = dict(speed=0.6, clearance=0.12, step_duration=0.36, double_support=0.2, lateral_speed=0.0,
               yaw_rate=0.0, height_offset=-0.02)
@@ -104,3 +107,28 @@ def test_windows_stopped_with_gaps_are_committed_feasible(robot):
     assert traj.solver["dynamic_gap"] < 1e-9
     residual = np.abs(frame_dynamics_residual(robot, traj)).max(axis=1)
     assert residual[~touchdown_frames(traj.contact_active)].max() < 1e-6
+
+
+@pytest.mark.parametrize("threshold", [0.01, 0.2])
+def test_short_steps_raise_the_regularization_below_the_setting(robot, threshold):
+    """`solver.reg_increase_below` is Crocoddyl's own rule: after an iteration whose step is no
+    longer than it the regularization rises tenfold; after a full step it falls tenfold; between,
+    it stays (docs/trajopt.md, "Speed: the solver's own levers")."""
+    task = get_task("walk", robot, {"steps": 2, "duration": 1.5, "solver.reg_increase_below": threshold})
+    plan = task.plan(PARAMS)
+    problem = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
+    settings = dataclasses.replace(task.config.solver, stall_tol=0.0)
+    sol = solve_shooting(problem.shooting, settings, max_iter=25)
+    regs = [settings.reg_init] + sol.regularization
+    seen = set()
+    for step, before, after in zip(sol.steps, regs, regs[1:]):
+        if step <= threshold:
+            expected, seen = min(10 * before, 1e9), seen | {"raised"}
+        elif step > 0.5:
+            expected, seen = max(before / 10, 1e-9), seen | {"lowered"}
+        else:
+            expected, seen = before, seen | {"kept"}
+        assert after == pytest.approx(expected, rel=1e-9), (step, before, after)
+    # steps between the two settings occur (raised with 0.2, kept with 0.01), and both changes do
+    assert any(0.2 >= step > 0.01 for step in sol.steps)
+    assert {"raised", "lowered"} <= seen

@@ -41,6 +41,24 @@ def _ranges(items: list[str]) -> dict[str, tuple[float, float]]:
     return ranges
 
 
+def _config(items: list[str]) -> dict[str, object]:
+    """--config key=value pairs, each value a number, true/false or text (the task config checks it)."""
+    out: dict[str, object] = {}
+    for key, text in _pairs(items, "--config", "key=value (a dotted task config key)").items():
+        value: object = text
+        if text.lower() in ("true", "false"):
+            value = text.lower() == "true"
+        else:
+            for kind in (int, float):
+                try:
+                    value = kind(text)
+                    break
+                except ValueError:
+                    pass
+        out[key] = value
+    return out
+
+
 @app.command()
 def generate(
     task: str = typer.Argument(..., help="Task name (e.g. walk, squat)."),
@@ -53,6 +71,9 @@ def generate(
     address: str = typer.Option(None, help="Ray cluster address (with --ray); default: start a local instance."),
     set_: list[str] = typer.Option([], "--set", help=set_help()),
     limit: list[str] = typer.Option([], "--limit", help=limit_help()),
+    config: list[str] = typer.Option([], "--config", help=(
+        "Task config override, key=value with a dotted key (repeatable), e.g. solver.reg_increase_below=0.2 "
+        "or receding.window=2.0; part of the dataset's identity.")),
     keep_gains: bool = typer.Option(False, "--keep-gains", help="Store the solver's feedback gains (float32) with the knots."),
     retry_failed: bool = typer.Option(False, "--retry-failed", help="Solve again the indices whose solve failed."),
     timeout: float = typer.Option(None, help="Seconds allowed per trajectory (default: no limit)."),
@@ -69,7 +90,7 @@ def generate(
     request = GenerateRequest(
         task=task, n=n, seed=seed, out=out or Path("data") / task, robot=robot, workers=workers,
         ranges=_ranges(set_), limits=_pairs(limit, "--limit", "name=value"), keep_gains=keep_gains,
-        retry_failed=retry_failed, timeout=timeout, ray=ray, ray_address=address,
+        retry_failed=retry_failed, timeout=timeout, ray=ray, ray_address=address, task_config=_config(config),
         command=shlex.join(["opt2skill", *sys.argv[1:]]),
     )
     summary = run(request, progress=not quiet)

@@ -32,6 +32,7 @@ class Solution:
     gap: float  # largest dynamic gap (defect) between nodes
     costs: list[float] = field(default_factory=list)  # cost after each iteration
     steps: list[float] = field(default_factory=list)  # accepted step length of each iteration
+    regularization: list[float] = field(default_factory=list)  # Crocoddyl's preg after each iteration
     windows: list[tuple] = field(default_factory=list)  # receding solves: (start s, iterations, stop, seconds)
 
     def stats(self) -> dict:
@@ -54,12 +55,14 @@ class _Monitor(crocoddyl.CallbackAbstract):
         self.settings = settings
         self.costs: list[float] = []
         self.steps: list[float] = []
+        self.regularization: list[float] = []  # after each iteration's update
         self.stalled = False
 
     def __call__(self, solver):
         cost = float(solver.cost)
         self.costs.append(cost)
         self.steps.append(float(solver.stepLength))
+        self.regularization.append(float(solver.preg))
         window = self.settings.stall_window
         if len(self.costs) > window:
             before = self.costs[-1 - window]
@@ -106,6 +109,7 @@ def solve_shooting(
     """Box-FDDP on a Crocoddyl problem; `is_feasible`: the guess is a rollout (no gaps)."""
     solver = crocoddyl.SolverBoxFDDP(shooting)
     solver.alphas = [2.0**-i for i in range(settings.line_search_steps)]
+    solver.th_stepInc = settings.reg_increase_below
     solver.th_stop = settings.stop
     monitor = _Monitor(settings)
     solver.setCallbacks([monitor])
@@ -145,4 +149,5 @@ def solve_shooting(
         gap=gap,
         costs=monitor.costs,
         steps=monitor.steps,
+        regularization=monitor.regularization,
     )
