@@ -18,6 +18,12 @@ a lever against the defaults on the same walks (docs/trajopt.md, "Speed", has th
 
 `--against-python` solves every walk with the compiled matched integrator and with its Python model,
 in alternating order, and reports both (docs/trajopt.md, "Speed: the compiled matched integrator").
+`--against key=value` (repeatable) does the same for config overrides: each walk is solved with and
+without them, in alternating order, and the per-walk ratio of the final costs is printed. On a
+machine whose speed drifts, only such interleaved runs compare (docs/trajopt.md, "Speed: the
+solver's own levers"):
+
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --against solver.reg_increase_below=0.2
 """
 
 from __future__ import annotations
@@ -97,6 +103,7 @@ class Tally:
     def __init__(self):
         self.solve, self.valid, self.total, self.solve_cpu, self.valid_cpu, self.total_cpu = ([] for _ in range(6))
         self.iterations, self.costs, self.accepted, self.reasons = [], [], 0, Counter()
+        self.cost_of: dict[int, float] = {}  # walk index -> final cost
 
     def walk(self, robot, task, config, index: int, params: dict, seed: int, label: str) -> None:
         start, start_cpu = time.perf_counter(), time.process_time()
@@ -117,6 +124,7 @@ class Tally:
         self.total_cpu.append(solved_cpu + checked_cpu)
         self.iterations.append(traj.solver["iterations"])
         self.costs.append(traj.solver["cost"])
+        self.cost_of[index] = traj.solver["cost"]
         self.accepted += bool(result["accepted"])
         self.reasons.update(result["reasons"])
         verdict = "accepted" if result["accepted"] else "rejected: " + ", ".join(result["reasons"])
@@ -160,7 +168,11 @@ def main() -> None:
                         help="solve each walk with the compiled and with the Python matched integrator, in alternating order")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a walk config override (dotted key, number or true/false), repeatable")
+    parser.add_argument("--against", action="append", default=[], metavar="KEY=VALUE",
+                        help="solve each walk also with this override (repeatable), in alternating order")
     args = parser.parse_args()
+    if args.against and args.against_python:
+        parser.error("--against and --against-python compare one thing at a time: give one of them")
 
     robot = load_robot("digit")
     overrides = dict(_override(item) for item in args.set)
@@ -175,15 +187,29 @@ def main() -> None:
     implementations = ["compiled", "python"] if args.against_python else [integrator.implementation()]
     print(f"matched integrator: {' against '.join(implementations)}"
           + (f" (compiled unavailable: {native.unavailable_reason()})" if native.load() is None else ""))
-    tallies = {name: Tally() for name in implementations}
+    # (label, task, matched integrator) of each way a walk is solved
+    variants = [(name if args.against_python else "", task, name) for name in implementations]
+    if args.against:
+        against = dict(_override(item) for item in args.against)
+        variants = [("default", task, implementations[0]),
+                    ("against", get_task("walk", robot, {**GAINS, **overrides, **against}), implementations[0])]
+        print(f"against: {against}")
+    tallies = {label: Tally() for label, _, _ in variants}
     for index in range(args.n):
         params = space.sample(args.seed, index)
-        order = implementations if index % 2 == 0 else implementations[::-1]  # neither always runs first
-        for name in order:
+        order = variants if index % 2 == 0 else variants[::-1]  # neither always runs first
+        for label, solver_task, name in order:
             with matched_integrator(name):
-                tallies[name].walk(robot, task, config, index, params, args.seed, name if args.against_python else "")
-    for name, tally in tallies.items():
-        tally.report(args.n, name if args.against_python else "")
+                tallies[label].walk(robot, solver_task, config, index, params, args.seed, label)
+    for label, tally in tallies.items():
+        tally.report(args.n, label)
+    if len(tallies) == 2:
+        first, second = tallies.values()
+        both = sorted(set(first.cost_of) & set(second.cost_of))
+        ratios = [second.cost_of[i] / first.cost_of[i] for i in both]
+        if ratios:
+            print(f"final cost, {variants[1][0]} / {variants[0][0]}, per walk: median {np.median(ratios):.3f}  "
+                  f"min {min(ratios):.3f}  max {max(ratios):.3f}  ({len(ratios)} walks solved both ways)")
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"peak memory  {peak_mb:.0f} MB (resident, this process)")
     if args.cold_max_iter > 0:
