@@ -45,6 +45,7 @@ from opt2skill.errors import SolverError  # noqa: E402
 from opt2skill.model import load_robot  # noqa: E402
 from opt2skill.tasks import get_task  # noqa: E402
 from opt2skill.trajopt import integrator, native  # noqa: E402
+from opt2skill.trajopt.config import parse_value  # noqa: E402
 
 
 GAINS = {"solver.keep_gains": True}
@@ -80,12 +81,7 @@ def cold_against_warm(robot, params: dict, seed: int, max_iter: int) -> None:
 
 def _override(item: str) -> tuple[str, object]:
     key, _, raw = item.partition("=")
-    if raw.lower() in ("true", "false"):
-        return key, raw.lower() == "true"
-    try:
-        return key, int(raw)
-    except ValueError:
-        return key, float(raw)
+    return key, parse_value(raw)
 
 
 def _load() -> str:

@@ -80,3 +80,12 @@ def test_overrides_load_from_yaml(tmp_path, robot):
         load_overrides(tmp_path / "bad.yaml")
     with pytest.raises(ConfigError, match="not found"):
         load_overrides(tmp_path / "missing.yaml")
+
+
+def test_command_line_values_take_the_type_they_read_as():
+    from opt2skill.trajopt.config import parse_value
+
+    assert parse_value("3") == 3 and isinstance(parse_value("3"), int)
+    assert parse_value("0.2") == 0.2 and parse_value("1e-3") == 0.001  # YAML would read 1e-3 as text
+    assert parse_value("TRUE") is True and parse_value("false") is False
+    assert parse_value("euler") == "euler"

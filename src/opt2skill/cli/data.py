@@ -43,20 +43,9 @@ def _ranges(items: list[str]) -> dict[str, tuple[float, float]]:
 
 def _config(items: list[str]) -> dict[str, object]:
     """--config key=value pairs, each value a number, true/false or text (the task config checks it)."""
-    out: dict[str, object] = {}
-    for key, text in _pairs(items, "--config", "key=value (a dotted task config key)").items():
-        value: object = text
-        if text.lower() in ("true", "false"):
-            value = text.lower() == "true"
-        else:
-            for kind in (int, float):
-                try:
-                    value = kind(text)
-                    break
-                except ValueError:
-                    pass
-        out[key] = value
-    return out
+    from opt2skill.trajopt.config import parse_value
+
+    return {key: parse_value(text) for key, text in _pairs(items, "--config", "key=value (a dotted task config key)").items()}
 
 
 @app.command()

@@ -103,6 +103,19 @@ def _coerce(current: Any, value: Any, path: str) -> Any:
     raise ConfigError(f"config key '{path}' cannot be overridden")
 
 
+def parse_value(text: str) -> bool | int | float | str:
+    """An override's value given as text (a command line): true/false, an integer, a number, or
+    the text itself; the config's types and checks then judge it."""
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
+
+
 def require(condition: bool, message: str) -> None:
     """For `check()` methods: raise ConfigError(message) unless `condition`."""
     if not condition:
