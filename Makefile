@@ -30,8 +30,8 @@ $(STAMP): pyproject.toml
 		$(BIN)/python -m pip install --quiet "torch==$(TORCH_VERSION)" $(TORCH_PIP_ARGS); \
 	fi
 	$(BIN)/python -m pip install --quiet -e ".[test]"
-	@# The compiled matched integrator (opt2skill.trajopt.native): built now so that tests and workers
-	@# find it; without a C++ compiler the optimizer uses the Python one and this says why.
+	@# The optimizer's compiled parts (opt2skill.trajopt.native): built now so that tests and workers
+	@# find them; without a C++ compiler the optimizer uses Python and Crocoddyl versions and this says why.
 	$(BIN)/python -m opt2skill.trajopt.native || true
 	@touch $(STAMP)
 

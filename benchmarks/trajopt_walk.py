@@ -18,6 +18,8 @@ a lever against the defaults on the same walks (docs/trajopt.md, "Speed", has th
 
 `--against-python` solves every walk with the compiled matched integrator and with its Python model,
 in alternating order, and reports both (docs/trajopt.md, "Speed: the compiled matched integrator").
+`--against-crocoddyl-barriers` does the same for the compiled barrier cost against Crocoddyl's
+residual cost (the same walks to the bit; docs/trajopt.md, "Speed: barrier costs without their zeros").
 `--against key=value` (repeatable) does the same for config overrides: each walk is solved with and
 without them, in alternating order, and the per-walk ratio of the final costs is printed. On a
 machine whose speed drifts, only such interleaved runs compare (docs/trajopt.md, "Speed: the
@@ -44,7 +46,7 @@ from opt2skill.data.validate import ValidationConfig, validate  # noqa: E402
 from opt2skill.errors import SolverError  # noqa: E402
 from opt2skill.model import load_robot  # noqa: E402
 from opt2skill.tasks import get_task  # noqa: E402
-from opt2skill.trajopt import integrator, native  # noqa: E402
+from opt2skill.trajopt import costs, integrator, native  # noqa: E402
 from opt2skill.trajopt.config import parse_value  # noqa: E402
 
 
@@ -142,17 +144,17 @@ class Tally:
 
 
 @contextlib.contextmanager
-def matched_integrator(name: str):
-    """Problems built inside use the named implementation of the matched integrator."""
-    if name == integrator.implementation():
-        yield
-        return
-    original = integrator.load_native
-    integrator.load_native = lambda: None  # the Python model (the compiled one is the default where it builds)
+def uncompiled(*modules):
+    """Problems built inside use the Python or Crocoddyl version of the compiled parts that these
+    modules would build (`integrator`: the matched integrator, `costs`: the barrier costs)."""
+    originals = [(module, module.load_native) for module in modules]
+    for module, _ in originals:
+        module.load_native = lambda: None
     try:
         yield
     finally:
-        integrator.load_native = original
+        for module, load in originals:
+            module.load_native = load
 
 
 def main() -> None:
@@ -162,13 +164,16 @@ def main() -> None:
     parser.add_argument("--cold-max-iter", type=int, default=200, help="iteration cap of the cold solve (0: skip it)")
     parser.add_argument("--against-python", action="store_true",
                         help="solve each walk with the compiled and with the Python matched integrator, in alternating order")
+    parser.add_argument("--against-crocoddyl-barriers", action="store_true",
+                        help="solve each walk with the compiled barrier cost and with Crocoddyl's, in alternating order")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a walk config override (dotted key, number or true/false), repeatable")
     parser.add_argument("--against", action="append", default=[], metavar="KEY=VALUE",
                         help="solve each walk also with this override (repeatable), in alternating order")
     args = parser.parse_args()
-    if args.against and args.against_python:
-        parser.error("--against and --against-python compare one thing at a time: give one of them")
+    if sum(map(bool, (args.against, args.against_python, args.against_crocoddyl_barriers))) > 1:
+        parser.error("--against, --against-python and --against-crocoddyl-barriers compare one thing at a time: "
+                     "give one of them")
 
     robot = load_robot("digit")
     overrides = dict(_override(item) for item in args.set)
@@ -178,24 +183,29 @@ def main() -> None:
     print(f"walk benchmark: {args.n} walks, seed {args.seed}, {platform.processor() or platform.machine()}, "
           f"{os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, {time.strftime('%Y-%m-%d %H:%M')}, "
           f"load average {_load()}" + (f", overrides {overrides}" if overrides else ""))
-    if args.against_python and native.load() is None:
-        parser.error(f"--against-python needs the compiled integrator: {native.unavailable_reason()}")
-    implementations = ["compiled", "python"] if args.against_python else [integrator.implementation()]
-    print(f"matched integrator: {' against '.join(implementations)}"
-          + (f" (compiled unavailable: {native.unavailable_reason()})" if native.load() is None else ""))
-    # (label, task, matched integrator) of each way a walk is solved
-    variants = [(name if args.against_python else "", task, name) for name in implementations]
+    for flag, asked in (("--against-python", args.against_python),
+                        ("--against-crocoddyl-barriers", args.against_crocoddyl_barriers)):
+        if asked and native.load() is None:
+            parser.error(f"{flag} needs the compiled parts: {native.unavailable_reason()}")
+    print(f"compiled parts (matched integrator, barrier costs): "
+          + ("yes" if native.load() is not None else f"no ({native.unavailable_reason()})"))
+    # (label, task, which compiled parts are left out) of each way a walk is solved
+    variants = [("", task, ())]
+    if args.against_python:
+        variants = [("compiled", task, ()), ("python", task, (integrator,))]
+    if args.against_crocoddyl_barriers:
+        variants = [("compiled barriers", task, ()), ("crocoddyl barriers", task, (costs,))]
     if args.against:
         against = dict(_override(item) for item in args.against)
-        variants = [("default", task, implementations[0]),
-                    ("against", get_task("walk", robot, {**GAINS, **overrides, **against}), implementations[0])]
+        variants = [("default", task, ()),
+                    ("against", get_task("walk", robot, {**GAINS, **overrides, **against}), ())]
         print(f"against: {against}")
     tallies = {label: Tally() for label, _, _ in variants}
     for index in range(args.n):
         params = space.sample(args.seed, index)
         order = variants if index % 2 == 0 else variants[::-1]  # neither always runs first
-        for label, solver_task, name in order:
-            with matched_integrator(name):
+        for label, solver_task, left_out in order:
+            with uncompiled(*left_out):
                 tallies[label].walk(robot, solver_task, config, index, params, args.seed, label)
     for label, tally in tallies.items():
         tally.report(args.n, label)

@@ -1,6 +1,7 @@
-"""The compiled matched integrator (trajopt.native): it builds where a C++ compiler is, it is the
-Python model's step and derivatives to round-off, the optimizer uses it, and a failed build is one
-clear reason with the Python model taking over."""
+"""The compiled parts of the optimizer (trajopt.native): they build where a C++ compiler is; the
+matched integrator is the Python model's step and derivatives to round-off, the barrier cost is
+Crocoddyl's residual cost to the bit; the optimizer uses both, and a failed build is one clear
+reason with the Python model and Crocoddyl's costs taking over."""
 
 import os
 import subprocess
@@ -13,7 +14,7 @@ import pytest
 
 from opt2skill.model import load_robot
 from opt2skill.tasks import get_task
-from opt2skill.trajopt import integrator, native
+from opt2skill.trajopt import costs, integrator, native
 from opt2skill.trajopt.integrator import MatchedEulerModel
 
 # Where the build's prerequisites are all here (as in CI), a missing module is a failure, not a skip.
@@ -48,6 +49,9 @@ def test_it_builds_here_and_the_optimizer_uses_it(walk):
     running = [m for m, n in zip(problem.shooting.runningModels, problem.nodes) if n.kind == "running"]
     compiled = [m for m in running if isinstance(m, native.load().MatchedEulerModel)]
     assert len(compiled) == len(running) > 20
+    cones = [item.cost for m in running for name, item in m.differential.costs.costs.todict().items()
+             if name.endswith("_cone")]
+    assert len(cones) > len(running) and all(isinstance(c, native.load().BarrierCostModel) for c in cones)
     assert problem.shooting.nthreads == 1  # one worker per core: no OpenMP team inside a problem
 
 
@@ -85,10 +89,57 @@ def test_step_and_derivatives_are_the_python_models(walk, contacts):
     assert fast.dt == built.dt and fast.position_dt2 == pytest.approx(slow.position_dt2, rel=1e-15)
 
 
+def _barriers(model, data) -> tuple[int, int]:
+    """(flat, all): the node's barrier costs, and those whose residual is strictly inside the bounds."""
+    flat = total = 0
+    for name, item in data.differential.costs.costs.todict().items():
+        activation = model.differential.costs.costs[name].cost.activation
+        if isinstance(activation, crocoddyl.ActivationModelQuadraticBarrier):
+            r, bounds = np.asarray(item.residual.r), activation.bounds
+            total += 1
+            flat += bool(np.all((r > bounds.lb) & (r < bounds.ub)))
+    return flat, total
+
+
+@needs_compiler
+@pytest.mark.parametrize("contacts", [1, 2])
+def test_barrier_costs_give_crocoddyls_derivatives_to_the_bit(walk, monkeypatch, contacts):
+    """Each node built with the compiled barrier costs and with Crocoddyl's: the same cost and
+    derivatives exactly, where every barrier is flat, where some are not (states far off the plan), and
+    on one data reused from an active state to a flat one (the skipped derivatives are zero, not stale)."""
+    task, plan, fast_problem = walk
+    monkeypatch.setattr(costs, "load_native", lambda: None)
+    slow_problem = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
+    k = next(i for i, n in enumerate(fast_problem.nodes) if n.kind == "running" and len(n.contacts) == contacts)
+    fast, slow = fast_problem.shooting.runningModels[k], slow_problem.shooting.runningModels[k]
+    barrier = native.load().BarrierCostModel
+    kinds = {name: type(item.cost) for name, item in fast.differential.costs.costs.todict().items()}
+    assert sum(kind is barrier for kind in kinds.values()) == contacts + 1  # the cones and the joint limits
+    assert not any(isinstance(item.cost, barrier) for item in slow.differential.costs.costs.todict().values())
+    standing = (plan.x0, np.zeros(fast.nu))
+    states = [random_state(plan, seed) for seed in range(3)] + [standing]
+    fd = fast.createData()  # one data through every state, as in a solve
+    seen = []
+    for x, u in states:
+        sd = slow.createData()
+        for model, data in ((fast, fd), (slow, sd)):
+            model.calc(data, x, u)
+            model.calcDiff(data, x, u)
+        seen.append(_barriers(fast, fd))
+        for name in ("Lx", "Lu", "Lxx", "Lxu", "Luu", "Fx", "Fu"):
+            np.testing.assert_array_equal(np.asarray(getattr(fd, name)), np.asarray(getattr(sd, name)), err_msg=name)
+        assert fd.cost == sd.cost
+    assert any(flat < total for flat, total in seen[:-1])  # the derivatives were computed somewhere
+    assert seen[-1][0] == seen[-1][1]  # and skipped at the end, after active states on the same data
+    with pytest.raises(ValueError, match="needs a state, an activation and a residual"):  # not a crash in C++
+        barrier(None, crocoddyl.ActivationModelQuad(3), None)
+
+
 @needs_compiler
 def test_a_walk_solves_to_the_same_plan_with_either(walk, monkeypatch):
     """Two receding windows of a real walk, solved with each implementation: the same iterations
-    and the same plan to round-off."""
+    and the same plan to round-off; with Crocoddyl's barrier costs instead of the compiled ones, the
+    same plan to the bit."""
     task, plan, _ = walk
     from opt2skill.trajopt.receding import solve_receding
     from opt2skill.trajopt.skills.stride_guess import StrideGuess
@@ -100,6 +151,13 @@ def test_a_walk_solves_to_the_same_plan_with_either(walk, monkeypatch):
                               first_max_iter=10, extend=StrideGuess(problem, plan.context))
 
     fast = solve()
+    with monkeypatch.context() as patch:
+        patch.setattr(costs, "load_native", lambda: None)
+        crocoddyl_barriers = solve()
+    assert crocoddyl_barriers.iterations == fast.iterations and crocoddyl_barriers.cost == fast.cost
+    np.testing.assert_array_equal(crocoddyl_barriers.xs, fast.xs)
+    for mine, theirs in zip(crocoddyl_barriers.us, fast.us, strict=True):  # impulse nodes have no torque
+        np.testing.assert_array_equal(mine, theirs)
     monkeypatch.setattr(integrator, "load_native", lambda: None)
     assert integrator.implementation() == "python"
     slow = solve()
@@ -121,7 +179,7 @@ def test_a_failed_build_is_one_reason_and_the_python_model_takes_over(tmp_path):
     assert out.returncode == 0, out.stderr
     reason, used = out.stdout.strip().splitlines()
     assert "no C++ compiler" in reason and "no-such-compiler" in reason and used == "python"
-    assert "using the Python one" in out.stderr  # logged once, as a warning
+    assert out.stderr.count("using the Python matched integrator") == 1  # logged once, as a warning
     cli = subprocess.run([sys.executable, "-m", "opt2skill.trajopt.native"], env=env, capture_output=True,
                          text=True, timeout=120)
     assert cli.returncode == 1

@@ -12,6 +12,18 @@ import numpy as np
 import pinocchio as pin
 
 from opt2skill.model.robot import Robot
+from opt2skill.trajopt.native import load as load_native
+
+
+def barrier(state, bounds: crocoddyl.ActivationBounds, residual):
+    """A quadratic barrier outside `bounds` on a residual. Compiled where `trajopt.native` builds:
+    inside the bounds (most nodes) it then skips the residual's derivatives, which Crocoddyl's cost
+    computes only to multiply them by zero; the results are the same."""
+    activation = crocoddyl.ActivationModelQuadraticBarrier(bounds)
+    native = load_native()
+    if native is not None:
+        return native.BarrierCostModel(state, activation, residual)
+    return crocoddyl.CostModelResidual(state, activation, residual)
 
 
 class Terms:
@@ -50,8 +62,7 @@ class Terms:
         pm = self.state.pinocchio
         x_neutral = np.concatenate([pin.neutral(pm), np.zeros(pm.nv)])
         residual = crocoddyl.ResidualModelState(self.state, x_neutral, self.nu)
-        activation = crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(lb, ub))
-        return crocoddyl.CostModelResidual(self.state, activation, residual)
+        return barrier(self.state, crocoddyl.ActivationBounds(lb, ub), residual)
 
     # -- task space ----------------------------------------------------------------------------
 
@@ -69,7 +80,7 @@ class Terms:
         barrier that keeps an arm off a desk top the optimizer does not otherwise see)."""
         residual = crocoddyl.ResidualModelFrameTranslation(self.state, self._site(site), np.zeros(3), self.nu)
         bounds = crocoddyl.ActivationBounds(np.array([-np.inf, -np.inf, height]), np.full(3, np.inf))
-        return crocoddyl.CostModelResidual(self.state, crocoddyl.ActivationModelQuadraticBarrier(bounds), residual)
+        return barrier(self.state, bounds, residual)
 
     def rotation(self, site: str, target: np.ndarray, weights=(1, 1, 1)):
         residual = crocoddyl.ResidualModelFrameRotation(self.state, self._site(site), np.asarray(target, float), self.nu)
@@ -91,15 +102,13 @@ class Terms:
         """Friction, centre of pressure and yaw torque of a flat contact (forces in its LOCAL frame)."""
         cone = crocoddyl.WrenchCone(np.eye(3), mu, np.asarray(box, float), 4, True, min_normal)
         residual = crocoddyl.ResidualModelContactWrenchCone(self.state, frame_id, cone, self.nu, True)
-        activation = crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(cone.lb, cone.ub))
-        return crocoddyl.CostModelResidual(self.state, activation, residual)
+        return barrier(self.state, crocoddyl.ActivationBounds(cone.lb, cone.ub), residual)
 
     def friction_cone(self, frame_id: int, surface: np.ndarray, mu: float, min_normal: float):
         """Coulomb cone of a point contact; `surface`'s z axis is the normal (world-aligned forces)."""
         cone = crocoddyl.FrictionCone(np.asarray(surface, float), mu, 4, True, min_normal)
         residual = crocoddyl.ResidualModelContactFrictionCone(self.state, frame_id, cone, self.nu, True)
-        activation = crocoddyl.ActivationModelQuadraticBarrier(crocoddyl.ActivationBounds(cone.lb, cone.ub))
-        return crocoddyl.CostModelResidual(self.state, activation, residual)
+        return barrier(self.state, crocoddyl.ActivationBounds(cone.lb, cone.ub), residual)
 
     def contact_force(self, frame_id: int, wrench: np.ndarray, weights):
         """Track a contact force (e.g. a wiping force); `wrench` in the contact's force coordinates."""

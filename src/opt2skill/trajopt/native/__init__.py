@@ -1,21 +1,25 @@
 """Compiled parts of the optimizer: built once against the installed Crocoddyl, loaded if they build.
 
-`matched_euler.cpp` is the matched integrator (`trajopt.integrator`) as a Crocoddyl C++ action
-model: the same step and derivatives, without Python in a node's `calc` and `calcDiff` (30 % and
-about 20 % of their time), and with datas that Crocoddyl's problems accept (the receding windows
-then reuse each node's data instead of allocating one per window).
+One module (`module.cpp`) with two Crocoddyl C++ classes:
+- `MatchedEulerModel` (`matched_euler.hpp`), the matched integrator (`trajopt.integrator`) as an
+  action model: the same step and derivatives, without Python in a node's `calc` and `calcDiff`
+  (30 % and about 20 % of their time), and with datas that Crocoddyl's problems accept (the
+  receding windows then reuse each node's data instead of allocating one per window);
+- `BarrierCostModel` (`barrier_cost.hpp`), Crocoddyl's residual cost with its derivatives skipped
+  where the activation is flat: a barrier inside its bounds (a wrench inside its cone, joints inside
+  their limits) costs no residual derivatives and no products of zeros (`trajopt.costs`).
 
 It is compiled on first use with the C++ compiler of the machine (`$CXX`, else `c++`) against the
 headers that the pinned wheels ship (crocoddyl, pinocchio, boost; Eigen from `cmeel-eigen`), into
 `<cache>/native/<key>/` (the temporary folder's `opt2skill-<uid>/` where the cache is not
-writable), where the key hashes the source, the compiled stack's versions and the Python ABI.
+writable), where the key hashes the sources, the compiled stack's versions and the Python ABI.
 `make install` builds it, so tests and workers find it ready. Processes that race to build it take
 a file lock; the module appears by atomic rename.
 
 Where it cannot be built (no compiler, no Python headers) or `OPT2SKILL_NATIVE=0` is set, `load()`
-returns None and says why once in the log; the callers then use the Python implementation, whose
-results agree to round-off (tests/test_trajopt_native.py). `python -m opt2skill.trajopt.native`
-builds it and prints where, or why not (exit status 1).
+returns None and says why once in the log; the callers then use the Python integrator and
+Crocoddyl's own residual costs, whose results agree to round-off (tests/test_trajopt_native.py).
+`python -m opt2skill.trajopt.native` builds it and prints where, or why not (exit status 1).
 """
 
 from __future__ import annotations
@@ -37,8 +41,9 @@ from types import ModuleType
 
 log = logging.getLogger(__name__)
 
-MODULE = "_matched_euler"
-SOURCE = Path(__file__).with_name("matched_euler.cpp")
+MODULE = "_native"
+SOURCE = Path(__file__).with_name("module.cpp")
+HEADERS = tuple(sorted(Path(__file__).parent.glob("*.hpp")))  # included by SOURCE
 STACK = ("crocoddyl", "pin", "libpinocchio", "cmeel-boost", "cmeel-eigen")  # what the binary depends on
 
 _loaded: ModuleType | None = None
@@ -68,8 +73,10 @@ def _versions() -> dict[str, str]:
 
 
 def build_key() -> str:
-    """Changes whenever the source, the compiled stack or the Python ABI does."""
+    """Changes whenever a source, the compiled stack or the Python ABI does."""
     h = hashlib.sha256(SOURCE.read_bytes())
+    for header in HEADERS:
+        h.update(header.read_bytes())
     h.update(repr(sorted(_versions().items())).encode())
     h.update((sys.implementation.cache_tag + sysconfig.get_config_var("EXT_SUFFIX")).encode())
     return h.hexdigest()[:16]
@@ -177,7 +184,8 @@ def load() -> ModuleType | None:
         _loaded, _ = _built_and_imported()
     except (NativeBuildError, ImportError, OSError) as exc:
         _reason = str(exc)
-        log.warning("compiled matched integrator unavailable (%s); using the Python one, about 15 %% slower", _reason)
+        log.warning("compiled optimizer parts unavailable (%s); using the Python matched integrator and "
+                    "Crocoddyl's residual costs, about 20 %% slower", _reason)
     return _loaded
 
 
@@ -199,7 +207,7 @@ def main() -> int:
     try:
         _, path = _built_and_imported()
     except (NativeBuildError, ImportError, OSError) as exc:
-        print(f"opt2skill: the compiled matched integrator was not built: {exc}", file=sys.stderr)
+        print(f"opt2skill: the compiled optimizer parts were not built: {exc}", file=sys.stderr)
         return 1
-    print(f"opt2skill: compiled matched integrator ready: {path}")
+    print(f"opt2skill: compiled optimizer parts ready: {path}")
     return 0

@@ -5,6 +5,8 @@
 // 3.2.1). With time_step2_ = dt^2 (N + 1) / (2 N) instead of dt^2 it is the position update of N
 // Euler substeps with the acceleration held, which is all the matched integrator changes. Everything
 // else (velocity update, cost scaling, derivatives, data, control bounds) is Crocoddyl's own.
+#pragma once
+
 #include <boost/python.hpp>
 #include <crocoddyl/core/integrator/euler.hpp>
 
@@ -12,12 +14,14 @@
 #include <stdexcept>
 #include <string>
 
+namespace matched_euler {
+
 namespace bp = boost::python;
 using crocoddyl::DifferentialActionModelAbstract;
 using crocoddyl::IntegratedActionModelEuler;
 
 // Checked before the base class's constructor, which dereferences the model.
-static std::shared_ptr<DifferentialActionModelAbstract> checked(std::shared_ptr<DifferentialActionModelAbstract> model,
+inline std::shared_ptr<DifferentialActionModelAbstract> checked(std::shared_ptr<DifferentialActionModelAbstract> model,
                                                                 double dt, int substeps) {
   if (!model) throw std::invalid_argument("MatchedEulerModel needs a differential action model, got None");
   if (!(dt > 0.0) || substeps < 1) {
@@ -40,8 +44,8 @@ class MatchedEuler : public IntegratedActionModelEuler {
   int substeps_;
 };
 
-BOOST_PYTHON_MODULE(_matched_euler) {
-  bp::import("crocoddyl");  // registers the base classes this one derives from
+// Called from the module's init (module.cpp), after crocoddyl's base classes are registered.
+inline void expose() {
   bp::class_<MatchedEuler, bp::bases<IntegratedActionModelEuler>, std::shared_ptr<MatchedEuler>, boost::noncopyable>(
       "MatchedEulerModel",
       "Semi-implicit Euler over dt with the position update of `substeps` Euler substeps (C++).",
@@ -52,3 +56,5 @@ BOOST_PYTHON_MODULE(_matched_euler) {
       .add_property("substeps", &MatchedEuler::substeps, "Euler substeps per node whose position update this matches")
       .add_property("position_dt2", &MatchedEuler::position_dt2, "the position update's factor of the acceleration");
 }
+
+}  // namespace matched_euler
