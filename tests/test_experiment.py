@@ -139,3 +139,26 @@ def test_a_human_folder_is_split_into_training_and_held_out_clips(tmp_path):
         build("human", "train", few, tmp_path / "out", progress=False)
     with pytest.raises(ConfigError, match="--human .* is not a folder"):
         resolve("quick", {"human": str(tmp_path / "missing")})
+
+
+def test_a_source_is_topped_up_to_its_count_of_accepted_references(tmp_path):
+    """`--n-test 2` counts accepted clips: where the first two lose one to validation (fast constructed
+    clips exceed the knees' speed), the next clips are retargeted into the same dataset (the first
+    ones keep their indices) until two are accepted; where too few pass, it stops at three clips per
+    one wanted and says how short it is; a rerun tries nothing new."""
+    from opt2skill.data.reader import Dataset
+    from opt2skill.experiment.sources import TOP_UP_LIMIT, build
+
+    s = resolve("quick", {"n_test": 2, "speed": (0.7, 1.3)})
+    first = build("human", "test", s, tmp_path / "ok", progress=False)
+    assert first["wanted"] == 2 and first["counts"]["accepted"] >= 2
+    assert first["requested"] > 2 and first["counts"]["rejected"] >= 1  # the first two were not enough
+    names = json.loads((tmp_path / "ok" / "data" / "human_test" / "dataset.json").read_text())["identity"]["files"]
+    assert names == [f"synthetic_001_{i:05d}.npz" for i in range(first["requested"])]
+    assert len(Dataset.open(tmp_path / "ok" / "data" / "human_test")) == first["counts"]["accepted"]
+    again = build("human", "test", s, tmp_path / "ok", progress=False)
+    assert (again["requested"], again["counts"]) == (first["requested"], first["counts"])
+
+    fast = resolve("quick", {"n_test": 2, "speed": (0.9, 1.5)})
+    short = build("human", "test", fast, tmp_path / "short", progress=False)
+    assert short["requested"] == TOP_UP_LIMIT * 2 and short["counts"]["accepted"] < 2

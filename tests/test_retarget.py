@@ -1,6 +1,7 @@
 """Human motion retargeting: the BVH and SMPL readers on constructed clips with known joint
 positions, leg-ratio speed scaling, feet on (not in) the ground, filters, and bad files."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -132,3 +133,22 @@ def test_cli_retargets_a_clip_and_refuses_a_bad_file_with_one_line(tmp_path):
     meta = ds.meta(0)
     assert (meta.task, meta.source, meta.has_dynamics) == ("walk_human", "human", False)
     assert Path(meta.provenance["source_file"]).name == "walk.npz"
+
+
+def test_a_longer_list_of_clips_extends_the_dataset_and_another_is_refused(tmp_path):
+    """The clips already retargeted keep their indices and are not redone; a list that does not
+    start with the dataset's files is one line, exit 2, and changes nothing."""
+    first, second = tmp_path / "walk.npz", tmp_path / "walk2.npz"  # sorted in this order
+    for clip, speed in ((first, 1.0), (second, 0.8)):
+        pos, fps = walking_joints(speed=speed, clearance=0.13, hip_height=0.9, duration=2.5)
+        np.savez(clip, joints=pos, mocap_framerate=fps)
+    out = tmp_path / "d"
+    assert _cli(str(first), "--out", str(out), "--quiet").returncode == 0
+    r = _cli(str(second), str(first), "--out", str(out), "--quiet")
+    assert r.returncode == 0, r.stderr
+    assert "walk2.npz:" in r.stdout and "walk.npz:" not in r.stdout  # only the new clip was retargeted
+    header = json.loads((out / "dataset.json").read_text())
+    assert header["identity"]["files"] == ["walk.npz", "walk2.npz"]
+    r = _cli(str(second), "--out", str(out), "--quiet")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1 and "holds a different dataset" in r.stderr
+    assert json.loads((out / "dataset.json").read_text())["identity"]["files"] == ["walk.npz", "walk2.npz"]

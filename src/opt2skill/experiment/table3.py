@@ -132,7 +132,10 @@ def _data_notes(s: ExperimentSettings, steps: Steps) -> list[str]:
             if record.get("status") == DONE:
                 c = result["counts"]
                 why = f" (not accepted: {result['reasons']})" if result.get("reasons") else ""
-                notes.append(f"{SOURCE_LABELS[src]} {split}: {c.get('accepted', 0)} of {result['requested']} accepted{why}")
+                wanted = result.get("wanted")  # absent in folders made before the top-up
+                short = (f", short of the {wanted} wanted" if wanted and c.get("accepted", 0) < wanted else "")
+                notes.append(f"{SOURCE_LABELS[src]} {split}: {c.get('accepted', 0)} of {result['requested']} accepted"
+                             f"{short}{why}")
             else:
                 notes.append(f"{SOURCE_LABELS[src]} {split}: unavailable: {result.get('reason', 'not run')}")
     if s.human is None:

@@ -2,21 +2,25 @@
 
 Clip i is the i-th of the files given (sorted by path); the dataset's identity holds the file
 names, so rerunning the same command skips the clips already done and another set of files into the
-same directory is an error naming the difference. Every file is read before any work: files that
-cannot be read are one `DataError` naming each (nothing is written). A clip the robot cannot follow
+same directory is an error naming the difference, except a list that extends the dataset's: the
+clips done keep their indices and the new ones follow (how `experiment table3` tops a source up).
+Every file is read before any work: files that cannot be read are one `DataError` naming each
+(nothing is written). A clip the robot cannot follow
 is kept in `rejected/` with its reasons (the filters are validation figures). Every clip gets one
 log line.
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import asdict
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from opt2skill.data.store import ACCEPTED, FAILED, REJECTED, DatasetStore, Outcome
+from opt2skill.data.atomic import write_json
+from opt2skill.data.store import ACCEPTED, FAILED, HEADER, REJECTED, DatasetStore, Outcome, read_header
 from opt2skill.data.summary import summarize
 from opt2skill.data.validate import ValidationConfig, validate
 from opt2skill.errors import ConfigError, DataError
@@ -70,6 +74,7 @@ def retarget_files(files: list[Path], out: Path, robot_name: str = "digit", fmt:
            "workers": 1, "backend": "process", "provenance": provenance(robot.hash)}
     store = DatasetStore(out)
     with store.lock():
+        _extend_clip_list(Path(out), identity)
         _, outcomes = store.prepare(identity, run)
         todo = [i for i in range(len(files)) if i not in outcomes]
         bar = None
@@ -89,6 +94,20 @@ def retarget_files(files: list[Path], out: Path, robot_name: str = "digit", fmt:
         summary = summarize(dict(sorted(outcomes.items())), identity, len(files))
         store.write_summary(summary)
     return summary
+
+
+def _extend_clip_list(out: Path, identity: dict[str, Any]) -> None:
+    """A dataset of the first of these clips, otherwise the same, takes the longer list (with the
+    lock held). Any other difference is left for `DatasetStore.prepare` to name."""
+    if not (out / HEADER).is_file():
+        return
+    header = read_header(out)
+    theirs, mine = header["identity"], json.loads(json.dumps(identity))
+    done, files = theirs.get("files"), mine["files"]
+    rest_equal = {k: v for k, v in theirs.items() if k != "files"} == {k: v for k, v in mine.items() if k != "files"}
+    if isinstance(done, list) and len(done) < len(files) and files[:len(done)] == done and rest_equal:
+        header["identity"] = {**theirs, "files": files}
+        write_json(out / HEADER, header)
 
 
 def _one(robot, motion: HumanMotion, index: int, settings: RetargetSettings, config: ValidationConfig,
