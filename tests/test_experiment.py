@@ -4,6 +4,7 @@ evaluation and sweeps), its resume, Table III's tests, and bad input."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import time
 
@@ -46,6 +47,10 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     assert runs["ik"]["ablation"] == runs["human"]["ablation"] == "pos" and runs["hist0"]["history"] == 0
     # --workers 2: the four policies trained two at a time in their own processes, then recorded by their steps
     assert "training 4 policies, 2 at a time" in r.stdout and r.stdout.count(": ready (") == 4, r.stdout[-3000:]
+    shared = max(1, (os.cpu_count() or 1) // 2)  # the cores shared out: not every core in each process
+    for key in runs:
+        first = json.loads((out / "runs" / key / "run.json").read_text())["invocations"][0]
+        assert first["threads"] == shared, (key, first)
     # IK and TO held-out references of the same index share their parameters
     to_report = json.loads((out / "eval" / "to" / "eval.json").read_text())
     ik_report = json.loads((out / "eval" / "ik" / "eval.json").read_text())

@@ -58,16 +58,16 @@ def run_dir(out: Path, key: str) -> Path:
 
 
 def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: str, history: int, command: str,
-                 progress: bool) -> dict[str, Any]:
+                 progress: bool, threads: int | None = None) -> dict[str, Any]:
     """A policy on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed, device and,
     where the settings have it, distill_steps), into OUT/runs/KEY; resumes from the run's newest
     checkpoint. PPO from scratch, or after distilling the optimizer's feedback expert when
-    `s.distill_steps` > 0 (rl.distill_session)."""
+    `s.distill_steps` > 0 (rl.distill_session). `threads`: physics and torch threads (None: every core)."""
     from opt2skill.rl import distill_session, session
 
     request = session.TrainRequest(dataset=Path(data["dataset"]), out=run_dir(out, key), steps=s.train_steps,
                                    num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=command,
-                                   device=s.device)
+                                   device=s.device, threads=threads)
     announce = lambda line: console.print(line, highlight=False)  # noqa: E731
     distill_steps = getattr(s, "distill_steps", 0)
     start = time.perf_counter()
@@ -95,11 +95,14 @@ def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, An
     if s.device != "cpu" or workers < 2 or len(jobs) < 2:
         return
     workers = min(workers, len(jobs))
-    console.print(f"training {len(jobs)} policies, {workers} at a time in their own processes "
-                  f"({', '.join(key for key, *_ in jobs)}); each step below then records its run", highlight=False)
+    # The cores shared out: each process with every core's threads would run 2 x workers threads on them.
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    console.print(f"training {len(jobs)} policies, {workers} at a time in their own processes of {threads} "
+                  f"thread{'s' if threads > 1 else ''} ({', '.join(key for key, *_ in jobs)}); each step below then "
+                  "records its run", highlight=False)
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
         started = time.perf_counter()
-        futures = {pool.submit(train_policy, s, out, key, data, ablation, history, command, False): key
+        futures = {pool.submit(train_policy, s, out, key, data, ablation, history, command, False, threads): key
                    for key, data, ablation, history in jobs}
         for future in as_completed(futures):
             key = futures[future]

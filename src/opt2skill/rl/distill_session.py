@@ -223,6 +223,7 @@ def _prepare(request: TrainRequest, distill: DistillConfig, distill_steps: int, 
                    num_envs=request.num_envs, seed=request.seed,
                    contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names), processes=size)
     invocation = {"command": request.command, "steps": request.steps, "init": "distill", "distill_steps": distill_steps,
+                  "threads": request.threads_per_process(size),
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
     existing = check_run(request.out, spec) if check_existing else None  # the configuration first, then ...
     if existing and checkpoint.latest(request.out) is not None and not (Path(request.out) / STAGE_DIR).is_dir():

@@ -177,7 +177,7 @@ def prepare(request: TrainRequest, size: int, check_existing: bool = True) -> Pr
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
                    num_envs=request.num_envs, seed=request.seed,
                    contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names), processes=size)
-    invocation = {"command": request.command, "steps": request.steps,
+    invocation = {"command": request.command, "steps": request.steps, "threads": request.threads_per_process(size),
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
     if check_existing:
         check_run(request.out, spec)  # a resume with another configuration: said before the slow loading
