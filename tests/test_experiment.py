@@ -26,8 +26,11 @@ TINY = ["--setting", "quick", "--n-train", "1", "--n-test", "1", "--duration", "
 @pytest.mark.slow
 def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     out = tmp_path / "t3"
-    r = subprocess.run([CLI, "experiment", "table3", "--out", str(out), *TINY], capture_output=True, text=True, timeout=900)
+    loud = [arg for arg in TINY if arg != "--quiet"]  # the progress bars drawn, on stderr
+    r = subprocess.run([CLI, "experiment", "table3", "--out", str(out), *loud], capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-3000:]
+    # the policies trained side by side: one bar over their environment steps, read from their logs, to the end
+    assert "training: 100%" in r.stderr, r.stderr[-3000:]
     for path in ("table3.md", "table3.json", "fig3.png", "provenance.json", "experiment.json"):
         assert (out / path).is_file(), path
     steps = {p.stem: json.loads(p.read_text()) for p in (out / "steps").glob("*.json")}
@@ -167,3 +170,16 @@ def test_a_source_is_topped_up_to_its_count_of_accepted_references(tmp_path):
     fast = resolve("quick", {"n_test": 2, "speed": (0.9, 1.5)})
     short = build("human", "test", fast, tmp_path / "short", progress=False)
     assert short["requested"] == TOP_UP_LIMIT * 2 and short["counts"]["accepted"] < 2
+
+
+def test_side_by_side_training_reads_its_progress_from_the_runs_logs(tmp_path):
+    """The bar over policies trained in other processes counts each run's distillation and PPO
+    steps from the last complete line of their progress logs (a line being written is skipped)."""
+    from opt2skill.experiment.runner import _env_steps
+
+    run = tmp_path / "run"
+    assert _env_steps(run) == 0  # nothing logged yet
+    (run / "distill").mkdir(parents=True)
+    (run / "distill" / "progress.jsonl").write_text('{"iteration": 1, "env_steps": 100}\n{"iteration": 2, "env_steps": 300}\n')
+    (run / "progress.jsonl").write_text('{"iteration": 1, "env_steps": 50}\n{"iteration": 2, "env_st')
+    assert _env_steps(run) == 350

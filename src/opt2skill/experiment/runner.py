@@ -81,14 +81,16 @@ def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: st
             "distill_env_steps": result.get("distill_env_steps", 0)}
 
 
-def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, Any], str, int]], command: str) -> None:
+def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, Any], str, int]], command: str,
+                           progress: bool = True) -> None:
     """Train the runs of `jobs` ((key, data step result, ablation, history), those not finished yet) up
     to `s.workers` at a time (0: every core), each in its own process, so that a machine's cores share
     the training; on a GPU (`s.device` not cpu) the training steps train one after another.
     The experiment's training steps then come after, one by one as before: each resumes its run,
     finds it finished, and records it. A run that fails here is only announced: its step trains it
-    again and records what happens."""
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    again and records what happens. `progress`: one bar over all these runs' environment steps, read
+    from their progress logs, with an ETA (the processes themselves draw none)."""
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from multiprocessing import get_context
 
     workers = s.workers or os.cpu_count() or 1
@@ -100,18 +102,60 @@ def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, An
     console.print(f"training {len(jobs)} policies, {workers} at a time in their own processes of {threads} "
                   f"thread{'s' if threads > 1 else ''} ({', '.join(key for key, *_ in jobs)}); each step below then "
                   "records its run", highlight=False)
+    runs = [run_dir(out, key) for key, *_ in jobs]
+    bar = _steps_bar(s, runs) if progress else None
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
         started = time.perf_counter()
-        futures = {pool.submit(train_policy, s, out, key, data, ablation, history, command, False, threads): key
+        pending = {pool.submit(train_policy, s, out, key, data, ablation, history, command, False, threads): key
                    for key, data, ablation, history in jobs}
-        for future in as_completed(futures):
-            key = futures[future]
-            try:
-                future.result()
-                console.print(f"  {key}: ready ({time.perf_counter() - started:.0f} s)", highlight=False)
-            except Exception as exc:  # noqa: BLE001 - the step that follows retries it and records the failure
-                console.print(f"  {key}: failed in its process ({type(exc).__name__}: {exc}); its step retries it",
-                              highlight=False)
+        while pending:
+            finished, _ = wait(pending, timeout=10.0, return_when=FIRST_COMPLETED)
+            if bar is not None:  # a run stops at the end of its last iteration, a little past its steps
+                bar.update(min(bar.total, sum(_env_steps(run) for run in runs)) - bar.n)
+            for future in finished:
+                key = pending.pop(future)
+                try:
+                    future.result()
+                    line = f"  {key}: ready ({time.perf_counter() - started:.0f} s)"
+                except Exception as exc:  # noqa: BLE001 - the step that follows retries it and records the failure
+                    line = f"  {key}: failed in its process ({type(exc).__name__}: {exc}); its step retries it"
+                (bar.write if bar is not None else lambda text: console.print(text, highlight=False))(line)
+    if bar is not None:
+        bar.close()
+
+
+def _steps_bar(s: Any, runs: list[Path]):
+    """A bar over the environment steps of `runs` (distillation and PPO), starting where they are."""
+    from tqdm import tqdm
+
+    per_run = s.train_steps + getattr(s, "distill_steps", 0)
+    total = per_run * len(runs)
+    return tqdm(total=total, initial=min(total, sum(_env_steps(run) for run in runs)), desc="training",
+                unit="step", unit_scale=True, dynamic_ncols=True)
+
+
+def _env_steps(run: Path) -> int:
+    """Environment steps a run has logged: its distillation's (`distill/progress.jsonl`) and PPO's."""
+    total = 0
+    for log in (Path(run) / "distill" / "progress.jsonl", Path(run) / "progress.jsonl"):
+        total += _last_env_steps(log)
+    return total
+
+
+def _last_env_steps(log: Path) -> int:
+    """`env_steps` of a progress log's last complete line; 0 where there is none yet."""
+    try:
+        with open(log, "rb") as f:
+            f.seek(max(0, f.seek(0, os.SEEK_END) - 65536))
+            lines = f.read().splitlines()
+    except OSError:
+        return 0
+    for line in reversed(lines):
+        try:
+            return int(json.loads(line)["env_steps"])
+        except (ValueError, KeyError, TypeError):
+            continue  # a line being written, or a partial one at the start of the tail
+    return 0
 
 
 def write_provenance(s: Settings, out: Path, steps: Steps, elapsed: float) -> None:

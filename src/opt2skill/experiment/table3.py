@@ -46,7 +46,7 @@ def run_table3(s: ExperimentSettings, out: Path, progress: bool = True) -> dict[
         data = {(src, split): steps.run(f"data-{src}-{split}", f"{SOURCE_LABELS[src]} references ({split})",
                                         lambda src=src, split=split: sources.build(src, split, s, out, progress))
                 for src in SOURCES for split in ("train", "test")}
-        _train_at_once(s, out, rows, data, steps)
+        _train_at_once(s, out, rows, data, steps, progress)
         for key, (src, h) in rows.items():
             steps.run(f"train-{key}", f"train {key} ({SOURCE_LABELS[src]}, history {h})",
                       lambda key=key, src=src, h=h: _train(s, out, key, src, h, data, progress))
@@ -73,12 +73,13 @@ def _ablation(s: ExperimentSettings, source: str) -> str:
     return s.to_ablation if source == "to" else "pos"  # kinematic records carry no torques or forces
 
 
-def _train_at_once(s: ExperimentSettings, out: Path, rows: dict[str, tuple[str, int]], data, steps: Steps) -> None:
+def _train_at_once(s: ExperimentSettings, out: Path, rows: dict[str, tuple[str, int]], data, steps: Steps,
+                   progress: bool) -> None:
     """The policies not trained yet whose references are there, `--workers` at a time, before the
     training steps record them."""
     jobs = [(key, data[(src, "train")]["result"], _ablation(s, src), h) for key, (src, h) in rows.items()
             if done(steps, f"train-{key}") is None and data[(src, "train")]["status"] == DONE]
-    train_policies_at_once(s, out, jobs, COMMAND)
+    train_policies_at_once(s, out, jobs, COMMAND, progress)
 
 
 def _train(s: ExperimentSettings, out: Path, key: str, source: str, history: int, data, progress: bool) -> dict:

@@ -38,7 +38,7 @@ def run_table4(s: Table4Settings, out: Path, progress: bool = True) -> dict[str,
         for name, (wipe_set, n) in sets.items():
             steps.run(f"data-{name}", f"wiping references {name} ({n})",
                       lambda wipe_set=wipe_set, n=n: force_sets.build(wipe_set, n, s, out, progress))
-        _train_at_once(s, out, steps)
+        _train_at_once(s, out, steps, progress)
         for a in s.ablations:
             steps.run(f"train-{a}", f"train {ABLATION_LABELS[a]}",
                       lambda a=a: train_policy(s, out, a, data_result(s, steps, "train"), a, s.history, COMMAND, progress))
@@ -63,13 +63,13 @@ def data_result(s: Table4Settings, steps: Steps, role: str) -> dict[str, Any]:
     return need(steps, f"data-{wipe_set.name}", f"{role} references")
 
 
-def _train_at_once(s: Table4Settings, out: Path, steps: Steps) -> None:
+def _train_at_once(s: Table4Settings, out: Path, steps: Steps, progress: bool) -> None:
     """The policies not trained yet, `--workers` at a time, before the training steps record them."""
     pending = [a for a in s.ablations if done(steps, f"train-{a}") is None]
     if done(steps, f"data-{force_sets.roles(s)['train'][0].name}") is None:
         return
     data = data_result(s, steps, "train")
-    train_policies_at_once(s, out, [(a, data, a, s.history) for a in pending], COMMAND)
+    train_policies_at_once(s, out, [(a, data, a, s.history) for a in pending], COMMAND, progress)
 
 
 def eval_dir(out: Path, ablation: str, force: float) -> Path:
