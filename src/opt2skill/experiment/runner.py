@@ -136,10 +136,7 @@ def _steps_bar(s: Any, runs: list[Path]):
 
 def _env_steps(run: Path) -> int:
     """Environment steps a run has logged: its distillation's (`distill/progress.jsonl`) and PPO's."""
-    total = 0
-    for log in (Path(run) / "distill" / "progress.jsonl", Path(run) / "progress.jsonl"):
-        total += _last_env_steps(log)
-    return total
+    return sum(_last_env_steps(Path(run) / sub / "progress.jsonl") for sub in ("distill", "."))
 
 
 def _last_env_steps(log: Path) -> int:

@@ -12,7 +12,6 @@ the steps it took."""
 from __future__ import annotations
 
 import math
-
 from pathlib import Path
 from typing import Any
 
