@@ -174,12 +174,28 @@ def test_a_source_is_topped_up_to_its_count_of_accepted_references(tmp_path):
 
 def test_side_by_side_training_reads_its_progress_from_the_runs_logs(tmp_path):
     """The bar over policies trained in other processes counts each run's distillation and PPO
-    steps from the last complete line of their progress logs (a line being written is skipped)."""
-    from opt2skill.experiment.runner import _env_steps
+    steps from the last complete line of their progress logs (a line being written is skipped),
+    and starts a resumed run where it restarts: lines logged after its newest checkpoint count only
+    once the run has rewritten its log."""
+    from opt2skill.experiment.runner import _LoggedSteps
+    from opt2skill.rl.checkpoint import checkpoint_dir
+    from opt2skill.rl.run import trim_progress
 
     run = tmp_path / "run"
-    assert _env_steps(run) == 0  # nothing logged yet
-    (run / "distill").mkdir(parents=True)
+    assert _LoggedSteps(run).count() == 0  # nothing logged yet
+    for stage, iteration in ((run / "distill", 2), (run, 1)):  # the newest checkpoints (only their names are read)
+        checkpoint_dir(stage).mkdir(parents=True)
+        (checkpoint_dir(stage) / f"model_{iteration:08d}.pt").touch()
     (run / "distill" / "progress.jsonl").write_text('{"iteration": 1, "env_steps": 100}\n{"iteration": 2, "env_steps": 300}\n')
-    (run / "progress.jsonl").write_text('{"iteration": 1, "env_steps": 50}\n{"iteration": 2, "env_st')
-    assert _env_steps(run) == 350
+    (run / "progress.jsonl").write_text('{"iteration": 1, "env_steps": 50}\n{"iteration": 2, "env_steps": 100}\n'
+                                        '{"iteration": 3, "env_steps": 150}\n{"iteration": 4, "env_st')
+    steps = _LoggedSteps(run)  # killed at iteration 3, checkpointed at 1: the PPO stage restarts at 50 steps
+    assert steps.count() == 300 + 50
+    with open(run / "progress.jsonl", "a") as log:  # still the killed run's file: not yet counted
+        log.write('{"iteration": 4, "env_steps": 200}\n')
+    assert steps.count() == 300 + 50
+    trim_progress(run, 1)  # the resumed run rewrites its log, then logs its next iteration
+    with open(run / "progress.jsonl", "a") as log:
+        log.write('{"iteration": 2, "env_steps": 100}\n')
+    assert steps.count() == 300 + 100
+    assert _LoggedSteps(run).count() == 300 + 50  # another launch now would restart from the checkpoint again

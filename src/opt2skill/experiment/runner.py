@@ -13,6 +13,7 @@ from typing import Any
 from opt2skill.cli.console import console
 from opt2skill.experiment.settings import Settings, claim_folder
 from opt2skill.experiment.steps import DONE, Steps, Unavailable
+from opt2skill.rl.run import PROGRESS_FILE
 
 
 def run_experiment(s: Settings, out: Path, total: int, body: Callable[[Path, Steps], dict[str, Path]]) -> dict[str, Path]:
@@ -102,7 +103,7 @@ def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, An
     console.print(f"training {len(jobs)} policies, {workers} at a time in their own processes of {threads} "
                   f"thread{'s' if threads > 1 else ''} ({', '.join(key for key, *_ in jobs)}); each step below then "
                   "records its run", highlight=False)
-    runs = [run_dir(out, key) for key, *_ in jobs]
+    runs = [_LoggedSteps(run_dir(out, key)) for key, *_ in jobs]
     bar = _steps_bar(s, runs) if progress else None
     with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
         started = time.perf_counter()
@@ -111,7 +112,7 @@ def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, An
         while pending:
             finished, _ = wait(pending, timeout=10.0, return_when=FIRST_COMPLETED)
             if bar is not None:  # a run stops at the end of its last iteration, a little past its steps
-                bar.update(min(bar.total, sum(_env_steps(run) for run in runs)) - bar.n)
+                bar.update(max(0, min(bar.total, sum(run.count() for run in runs)) - bar.n))
             for future in finished:
                 key = pending.pop(future)
                 try:
@@ -124,19 +125,68 @@ def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, An
         bar.close()
 
 
-def _steps_bar(s: Any, runs: list[Path]):
-    """A bar over the environment steps of `runs` (distillation and PPO), starting where they are."""
+def _steps_bar(s: Any, runs: list[_LoggedSteps]):
+    """A bar over the environment steps of `runs` (distillation and PPO), starting where they resume."""
     from tqdm import tqdm
 
     per_run = s.train_steps + getattr(s, "distill_steps", 0)
     total = per_run * len(runs)
-    return tqdm(total=total, initial=min(total, sum(_env_steps(run) for run in runs)), desc="training",
+    return tqdm(total=total, initial=min(total, sum(run.count() for run in runs)), desc="training",
                 unit="step", unit_scale=True, dynamic_ncols=True)
 
 
-def _env_steps(run: Path) -> int:
-    """Environment steps a run has logged: its distillation's (`distill/progress.jsonl`) and PPO's."""
-    return sum(_last_env_steps(Path(run) / sub / "progress.jsonl") for sub in ("distill", "."))
+class _LoggedSteps:
+    """Environment steps a run has logged (its distillation's, `distill/progress.jsonl`, and PPO's),
+    counted as its resumption counts them. Lines logged after a stage's newest checkpoint were lost
+    with the kill that stopped it: they count only once the resumed run has rewritten its log (a new
+    file), so that a bar never starts above where the training restarts and then runs backwards."""
+
+    def __init__(self, run: Path):
+        self.stages = [Path(run) / "distill", Path(run)]
+        self.stale = {}  # stage -> (its log's inode at the start, steps logged at its newest checkpoint)
+        for stage in self.stages:
+            log = stage / PROGRESS_FILE
+            at_checkpoint = _steps_at_checkpoint(stage)
+            if _last_env_steps(log) > at_checkpoint:
+                self.stale[stage] = (_inode(log), at_checkpoint)
+
+    def count(self) -> int:
+        total = 0
+        for stage in self.stages:
+            log = stage / PROGRESS_FILE
+            inode, at_checkpoint = self.stale.get(stage, (None, 0))
+            total += at_checkpoint if inode is not None and _inode(log) == inode else _last_env_steps(log)
+        return total
+
+
+def _inode(path: Path) -> int | None:
+    try:
+        return path.stat().st_ino
+    except OSError:
+        return None
+
+
+def _steps_at_checkpoint(stage: Path) -> int:
+    """`env_steps` logged at the iteration of the stage's newest checkpoint (0 without one)."""
+    from opt2skill.rl import checkpoint
+
+    newest = checkpoint.latest(stage)
+    if newest is None:
+        return 0
+    iteration = int(newest.stem.removeprefix("model_"))
+    steps = 0
+    try:
+        lines = (stage / PROGRESS_FILE).read_text().splitlines()
+    except OSError:
+        return 0
+    for line in lines:
+        try:
+            row = json.loads(line)
+        except ValueError:
+            continue  # a partial last line
+        if isinstance(row, dict) and row.get("iteration", iteration + 1) <= iteration:
+            steps = int(row.get("env_steps", steps))
+    return steps
 
 
 def _last_env_steps(log: Path) -> int:

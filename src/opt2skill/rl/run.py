@@ -179,7 +179,13 @@ def read_progress(run: Path) -> list[dict[str, Any]]:
     path = Path(run) / PROGRESS_FILE
     if not path.is_file():
         return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    lines = [line for line in path.read_text().splitlines() if line.strip()]
+    rows = [json.loads(line) for line in lines[:-1]]
+    try:
+        rows += [json.loads(line) for line in lines[-1:]]
+    except ValueError:
+        pass  # a last line cut short by a kill mid-write: its iteration is trained again
+    return rows
 
 
 def trim_progress(run: Path, last_iteration: int) -> None:
