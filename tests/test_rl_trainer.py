@@ -83,3 +83,21 @@ def test_a_checkpoint_of_another_policy_is_refused(reference, tmp_path):
     open_run(tmp_path / "b", spec, {})
     with pytest.raises(DataError, match=r"ablation 'pos_f_t' \(expected 'pos'\)"):
         load_policy(tmp_path / "b", saved)  # e.g. eval or export given a checkpoint of run a
+
+
+def test_the_learner_sits_on_the_physics_gpu_and_on_the_cpu_otherwise(reference):
+    """PPO learns where the physics is for one process on a GPU (rsl_rl's networks, storage and the
+    observations handed to it), on the CPU for C MuJoCo and Warp's CPU device, and on the CPU for a
+    group of processes (gloo averages their gradients). A policy snapshot always acts on the CPU."""
+    from opt2skill.rl.policy import Policy
+    from opt2skill.sim.devices import learner_device
+
+    assert learner_device("cuda") == "cuda" and learner_device("cuda:1") == "cuda:1"
+    assert learner_device("cpu") == learner_device("warp-cpu") == learner_device("cuda:1", processes=2) == "cpu"
+    env = make_env([reference], num_envs=2)
+    trainer = Trainer(env, SMALL, None, seed=0)
+    obs = trainer.venv.get_observations()
+    assert trainer.venv.device == torch.device("cpu") and obs.device == trainer.venv.device
+    assert {p.device for p in trainer.alg.actor.parameters()} == {trainer.venv.device}
+    actions = Policy(trainer.alg.actor)(obs["actor"].numpy())
+    assert isinstance(actions, np.ndarray) and actions.shape == (2, env.nu)

@@ -67,7 +67,8 @@ def train(
     judge_every: int = typer.Option(50, "--judge-every", help="Iterations between held-out judgements."),
     judge_n: int = typer.Option(10, "--judge-n", help="Held-out references per judgement."),
     device: str = typer.Option("cpu", "--device", help="Physics backend: cpu (C MuJoCo on every core) or cuda "
-                               "(MuJoCo Warp on the GPU; pip install 'opt2skill[gpu]', docs/training.md)."),
+                               "(MuJoCo Warp on the GPU, and PPO learning there too; pip install "
+                               "'opt2skill[gpu]', docs/training.md)."),
     procs: int = typer.Option(1, "--procs", help="Processes training together on this machine, each with "
                               "--num-envs worlds and its share of the cores; their gradients are averaged "
                               "(rl.processes; --init scratch). Under torchrun, torchrun's processes."),

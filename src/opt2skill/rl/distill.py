@@ -73,9 +73,10 @@ def clone_steps(actor: MLPModel, optimizer: torch.optim.Optimizer, buffer: Label
     In a group of processes each samples `batch_size / size` of its own buffer and the gradients are
     averaged: the gradient of one `batch_size` minibatch, as in one process, for the same work."""
     batch_size = max(1, batch_size // group.size)
+    device = next(actor.parameters()).device  # the buffer is on the CPU; a PPO actor may learn on a GPU
     losses = []
     for _ in range(updates):
-        obs, label = buffer.sample(batch_size, generator)
+        obs, label = (x.to(device) for x in buffer.sample(batch_size, generator))
         prediction = actor(TensorDict({"actor": obs}, batch_size=[len(obs)]))
         loss = torch.mean((prediction - label) ** 2)
         optimizer.zero_grad()

@@ -36,7 +36,8 @@ class Policy:
 
     def __init__(self, actor: MLPModel, iteration: int = 0, env_steps: int = 0):
         self.actor = actor.eval()
-        self.module = actor.as_onnx(verbose=False).eval()  # normalizer + MLP on a flat observation
+        # A copy of the normalizer and MLP on a flat observation, on the CPU whatever device trains the actor.
+        self.module = actor.as_onnx(verbose=False).eval().cpu()
         self.iteration, self.env_steps = iteration, env_steps
         self.obs_dim = actor.obs_dim
 

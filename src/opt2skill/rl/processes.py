@@ -7,7 +7,7 @@ take together: whether to checkpoint (rank 0's clock decides), and the iteration
 over the processes, rates summed), so that every process runs the same sequence of collective
 calls and an adaptive curriculum moves the same way everywhere.
 
-The learner stays on the CPU (gloo backend) whatever the physics device; process r steps its
+A group's learners stay on the CPU (gloo backend) whatever the physics device; process r steps its
 physics on `cuda:r` with `--device cuda` under `torchrun` on a multi-GPU machine, and on CPU cores
 otherwise. Two ways to start:
 

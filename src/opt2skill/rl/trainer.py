@@ -30,6 +30,7 @@ from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.processes import ONE, Group
 from opt2skill.rl.run import PROGRESS_FILE, trim_progress
 from opt2skill.rl.vec_env import TrackingVecEnv
+from opt2skill.sim.devices import learner_device
 
 
 @dataclass(frozen=True)
@@ -46,7 +47,7 @@ def build_algorithm(venv: TrackingVecEnv, ppo: PPOConfig, group: Group = ONE) ->
     in a group of processes, averaging gradients with the others and starting from rank 0's networks."""
     cfg = {**ppo.rsl_rl(venv.env.sim.policy_dt), "multi_gpu": group.rsl_rl()}
     with contextlib.redirect_stdout(io.StringIO()):
-        alg = PPO.construct_algorithm(venv.get_observations(), venv, cfg, "cpu")
+        alg = PPO.construct_algorithm(venv.get_observations(), venv, cfg, str(venv.device))
     last = [m for m in alg.actor.mlp if isinstance(m, torch.nn.Linear)][-1]
     with torch.no_grad():  # the untrained policy's mean action is ~0: the default pose, not a random offset
         last.weight.mul_(ppo.actor_output_gain)
@@ -72,7 +73,7 @@ class Trainer:
         # instead of with the environment steps.
         self.pace = None
         torch.manual_seed(seed)  # the networks' initialization: the same on every process of a group
-        self.venv = TrackingVecEnv(env, ppo.reward_scale or None)
+        self.venv = TrackingVecEnv(env, ppo.reward_scale or None, learner_device(env.device, group.size))
         self.alg = build_algorithm(self.venv, ppo, group)
         if not group.is_main:  # the actions' noise: a stream of each process's own (rank 0's goes on as one process's)
             torch.manual_seed(group.seed(seed))
@@ -94,6 +95,8 @@ class Trainer:
             "elapsed": self.elapsed,
             "progress": self.env.progress,
             "torch_rng": torch.get_rng_state(),
+            # the actions' noise is drawn on the learner's device: a GPU's generator resumes too
+            **({"cuda_rng": torch.cuda.get_rng_state(self.venv.device)} if self.venv.device.type == "cuda" else {}),
             "env_rng": self.env.rng.bit_generator.state,
             "starts": self.env.starts.state(),
             "dims": {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu},
@@ -121,6 +124,8 @@ class Trainer:
             group["lr"] = data["learning_rate"]
         self.iteration, self.env_steps, self.elapsed = data["iteration"], data["env_steps"], data["elapsed"]
         torch.set_rng_state(data["torch_rng"])
+        if self.venv.device.type == "cuda" and "cuda_rng" in data:
+            torch.cuda.set_rng_state(data["cuda_rng"], self.venv.device)
         if self.anchor is not None and "anchor" in data:
             self.anchor.restore(data["anchor"])
         if self.pace is not None and "pace" in data:
@@ -160,7 +165,7 @@ class Trainer:
         std = self.ppo.init_std
         with torch.no_grad():
             for _ in range(self.steps_per_env):
-                obs, *_ = self.venv.step(std * torch.randn(self.env.num_envs, self.env.nu))
+                obs, *_ = self.venv.step(std * torch.randn(self.env.num_envs, self.env.nu, device=self.venv.device))
                 observations.append(obs)
             batch = torch.cat(observations)
             self.alg.actor.update_normalization(batch)
@@ -181,7 +186,7 @@ class Trainer:
         with torch.inference_mode():
             for _ in range(self.steps_per_env):
                 if self.anchor is not None:
-                    self.anchor.observe(obs["actor"].numpy())
+                    self.anchor.observe(obs["actor"].cpu().numpy())
                 actions = alg.act(obs)
                 obs, rewards, dones, extras = venv.step(actions)
                 alg.process_env_step(obs, rewards, dones, extras)

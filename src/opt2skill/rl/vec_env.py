@@ -63,21 +63,27 @@ class EpisodeStats:
 
 
 class TrackingVecEnv(VecEnv):
-    def __init__(self, env: TrackingEnv, reward_scale: float | None = None):
+    """`device`: where the learner is (rsl_rl's `VecEnv.device`); the environment's numpy arrays are
+    copied there each step, and the actions back."""
+
+    def __init__(self, env: TrackingEnv, reward_scale: float | None = None, device: str = "cpu"):
         self.env = env
         self.num_envs = env.num_envs
         self.num_actions = env.nu
         self.max_episode_length = int(env.bank.length.max())
-        self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long)
-        self.device = "cpu"
+        self.device = torch.device(device)
+        self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         self.cfg = {}
         self.reward_scale = env.sim.policy_dt if reward_scale is None else reward_scale
         self.stats = EpisodeStats(tuple(env.config.rewards.terms()))
         self._obs = self._wrap(*env.observations())
 
+    def _tensor(self, array: np.ndarray) -> torch.Tensor:
+        return torch.from_numpy(array).to(self.device)
+
     def _wrap(self, actor: np.ndarray, critic: np.ndarray) -> TensorDict:
-        return TensorDict({"actor": torch.from_numpy(actor), "critic": torch.from_numpy(critic)},
-                          batch_size=[self.num_envs])
+        return TensorDict({"actor": self._tensor(actor), "critic": self._tensor(critic)},
+                          batch_size=[self.num_envs], device=self.device)
 
     def refresh(self) -> None:
         """Read the observations again (after the environment was reset outside `step`)."""
@@ -90,8 +96,8 @@ class TrackingVecEnv(VecEnv):
         result = self.env.step(actions.detach().cpu().numpy())
         self.stats.add(result)
         self._obs = self._wrap(result.actor, result.critic)
-        self.episode_length_buf = torch.from_numpy(self.env.steps)
-        rewards = torch.from_numpy((result.reward * self.reward_scale).astype(np.float32))
-        dones = torch.from_numpy(result.terminated | result.truncated)
-        extras = {"time_outs": torch.from_numpy(result.truncated)}
+        self.episode_length_buf = self._tensor(self.env.steps)
+        rewards = self._tensor((result.reward * self.reward_scale).astype(np.float32))
+        dones = self._tensor(result.terminated | result.truncated)
+        extras = {"time_outs": self._tensor(result.truncated)}
         return self._obs, rewards, dones, extras

@@ -50,6 +50,15 @@ def check_device(device: str) -> None:
         raise ConfigError(f"--device {name}: this machine has {count} CUDA device(s), cuda:0 to cuda:{count - 1}")
 
 
+def learner_device(device: str, processes: int = 1) -> str:
+    """The torch device PPO learns on beside physics on `device`: the same GPU for `cuda` / `cuda:K`
+    (rsl_rl's networks, rollout storage and updates there, the observations copied to it once per
+    step), the CPU for `cpu` and `warp-cpu`. A group of processes (`rl.processes`) averages its
+    gradients over gloo, so its learners stay on the CPU whatever the physics device."""
+    name = str(device)
+    return name if processes == 1 and (name == "cuda" or name.startswith("cuda:")) else "cpu"
+
+
 def make_sim(robot: Robot, nworld: int, config: SimConfig, terrains: Sequence[Terrain] = (Flat(),),
              device: str = "cpu", prop_sets: Sequence[Sequence[Prop]] = ((),)) -> BatchedSim:
     """The batched simulator of `device` (see the module docstring). Only C MuJoCo simulates props
