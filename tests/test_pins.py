@@ -17,7 +17,7 @@ from opt2skill.model import load_robot
 from opt2skill.model.convert import qpos_mj_to_pin
 
 PYPROJECT = Path(__file__).resolve().parents[1] / "pyproject.toml"
-COMPILED_STACK = ("crocoddyl", "pin", "libpinocchio", "mujoco", "mim-solvers", "mink", "qpsolvers", "daqp")
+COMPILED_STACK = ("crocoddyl", "pin", "libpinocchio", "mujoco", "mink", "qpsolvers", "daqp")
 
 
 def test_installed_versions_equal_the_exact_pins():
