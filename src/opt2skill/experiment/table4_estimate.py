@@ -1,5 +1,5 @@
 """What a table4 run is expected to cost on a 2-core CPU, from the per-item rates measured here
-(docs/experiments.md), printed before it starts: the full setting is about 21 h. PPO's rate is
+(docs/experiments.md), printed before it starts: the full setting is about 14 h. PPO's rate is
 table3's on walks (128 worlds); the wipe's was not measured at that scale."""
 
 from __future__ import annotations
@@ -12,10 +12,14 @@ from opt2skill.experiment.table4_settings import TASK, Table4Settings
 # validation 1.0 s. The same solves took 96 s and 5 s when three other jobs shared the machine.
 SOLVE_PER_MOTION_SECOND = 1.65  # s of wipe solve per s of motion
 VALIDATION = 1.0  # s per reference (the expert's force replay included)
-TRAIN_STEPS_PER_S = 1300.0  # environment steps/s end to end, 128 worlds, quiet 2-core CPU (docs/experiments.md)
-DISTILL_STEPS_PER_S = 400.0  # environment steps/s distilling wipes, 64 worlds, two runs on the two cores (2026-12-02)
+# The machine's environment steps/s of PPO, 128 worlds per policy, policies trained side by side (one per
+# core, one thread each): 2 x 1177 on table3's walks, 2026-12-03 (1300 before the processes stopped
+# oversubscribing the cores); not measured on the wipe at that scale.
+TRAIN_STEPS_PER_S = 2350.0
+DISTILL_STEPS_PER_S = 400.0  # environment steps/s distilling wipes, 64 worlds, two runs on the two cores (2026-12-02,
+# before the thread fix: pessimistic)
 TRAIN_SETUP = 20.0  # s per policy: environment, references, checkpoints (29 to 69 s for 3,072 steps at load 6-7)
-EVAL_STEP = 0.014  # s per policy step of one evaluation's batch of worlds (14-s walks, 20 worlds: 40 s quiet)
+EVAL_STEP = 0.003  # s per policy step of one evaluation's batch of worlds: 153 s for 24 evaluations of 2,280 steps
 
 
 def motion_seconds(s: Table4Settings) -> float:
