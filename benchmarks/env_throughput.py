@@ -17,7 +17,8 @@ Prints on this machine:
      physics more than a standing one, which no environment code can recover);
    and the share of the step spent inside `rollout`;
 3. the PPO learner's samples/s (rsl_rl update: 5 epochs of 4 mini-batches over 128 worlds x 48 steps,
-   actor and critic [512, 512, 256, 256]) with 1 and 2 torch threads.
+   actor and critic [512, 512, 256, 256]) with 1 and 2 torch threads, in float32 and with bf16
+   autocast (`train --mixed-precision`).
 
 With `--device cuda` (MuJoCo Warp on the GPU, the PPO learner on the same GPU; `warp-cpu` runs the
 same on Warp's CPU device, to check the plumbing) it runs whole PPO iterations instead, per N (default
@@ -141,10 +142,10 @@ class SameWorkCeiling:
         return steps, time.perf_counter() - start
 
 
-def learner_rate(robot, config, bank, threads: int, repeats: int = 3) -> float:
+def learner_rate(robot, config, bank, threads: int, repeats: int = 3, mixed_precision: bool = False) -> float:
     """Samples per second through PPO's update (epochs counted), on a real rollout of 128 worlds."""
     torch.set_num_threads(threads)
-    ppo = PPOConfig()
+    ppo = PPOConfig(mixed_precision=mixed_precision)
     with TrackingEnv(robot, bank, config, 128, seed=0) as env:
         trainer = Trainer(env, ppo, None, seed=0)
         trainer.warm_up_normalizers()
@@ -228,8 +229,10 @@ def main() -> None:
               f"{5 * rate / raw:6.1%} of the standing ceiling ({raw:6.0f}); {physics:5.1%} of the step inside rollout")
     ceiling.close()
     for threads in (1, 2):
-        print(f"learner  {threads} torch thread(s): {learner_rate(robot, config, bank, threads):8.0f} samples/s "
-              f"(5 epochs x 4 mini-batches of 1536, actor and critic [512, 512, 256, 256])")
+        for mixed in (False, True):
+            print(f"learner  {threads} torch thread(s), {'bf16 autocast' if mixed else 'float32'}: "
+                  f"{learner_rate(robot, config, bank, threads, mixed_precision=mixed):8.0f} samples/s "
+                  f"(5 epochs x 4 mini-batches of 1536, actor and critic [512, 512, 256, 256])")
 
 
 if __name__ == "__main__":

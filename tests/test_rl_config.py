@@ -67,6 +67,31 @@ def test_runs_made_before_adaptive_starts_still_resume_and_an_adaptive_run_is_an
         open_run(run, adaptive, {})
 
 
+def test_mixed_precision_reaches_rsl_rl_updates_and_is_part_of_a_runs_configuration(tmp_path):
+    """`--mixed-precision`: rsl_rl's PPO updates under bf16 autocast (the networks stay float32 and the
+    update moves them); runs without it write nothing new (runs made before it resume), and a resume
+    that changes it is refused."""
+    spec = RunSpec(dataset="/d", dataset_identity={"task": "walk"}, trajectories=3, robot="digit", robot_hash="abc",
+                   tracking=tracking_config("walk"), ppo=PPOConfig(), num_envs=8, seed=1)
+    assert "mixed_precision" not in spec.to_dict()["ppo"]  # what runs before it wrote
+    run = tmp_path / "run"
+    open_run(run, spec, {"command": "a"})
+    mixed = dataclasses.replace(spec, ppo=PPOConfig(mixed_precision=True))
+    assert RunSpec.from_dict(mixed.to_dict()) == mixed
+    with pytest.raises(ConfigError, match=r"ppo.mixed_precision: - -> True"):
+        open_run(run, mixed, {})
+    traj, _ = recorded_reference(steps=30)
+    trainer = Trainer(make_env([traj], num_envs=4), PPOConfig(rollout_seconds=0.02, hidden_dims=(32, 32),
+                                                              mixed_precision=True), None, seed=0)
+    assert trainer.alg.use_mixed_precision
+    trainer.warm_up_normalizers()
+    before = [p.detach().clone() for p in trainer.alg.actor.parameters()]
+    figures = trainer.train_iteration()
+    after = list(trainer.alg.actor.parameters())
+    assert all(p.dtype == torch.float32 for p in after)
+    assert any(not torch.equal(a, b) for a, b in zip(after, before)) and math.isfinite(figures["loss/surrogate"])
+
+
 def test_checkpoints_are_atomic_keep_the_newest_and_restore_the_trainer(tmp_path):
     traj, _ = recorded_reference(steps=30)
     env = make_env([traj], num_envs=4)

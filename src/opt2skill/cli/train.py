@@ -72,6 +72,10 @@ def train(
     procs: int = typer.Option(1, "--procs", help="Processes training together on this machine, each with "
                               "--num-envs worlds and its share of the cores; their gradients are averaged "
                               "(rl.processes; --init scratch). Under torchrun, torchrun's processes."),
+    mixed_precision: bool = typer.Option(False, "--mixed-precision", help="bf16 autocast in PPO's update (weights and "
+                                         "rollouts stay float32): 2.7 times the learner's speed on a CPU with "
+                                         "AVX512-BF16, slower where bf16 is emulated; a GPU computes bf16 natively "
+                                         "(docs/training.md)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Train a tracking policy on a dataset (PPO, rsl_rl); checkpoints, TensorBoard logs, resume."""
@@ -89,7 +93,7 @@ def train(
                            ablation=ablation, seed=seed, threads=threads, checkpoint_every=checkpoint_every,
                            command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out, kp_scale=kp_scale, sampling=sampling,
                            judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed), device=device,
-                           procs=procs)
+                           procs=procs, mixed_precision=mixed_precision)
     request.check()
     _terminate_as_interrupt()
     if init == "distill":

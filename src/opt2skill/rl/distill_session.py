@@ -51,6 +51,7 @@ from opt2skill.rl.pace import AdaptivePace
 from opt2skill.rl.policy import build_actor
 from opt2skill.rl.run import RunSpec, check_run, differences, open_run, trim_progress
 from opt2skill.rl.best import HeldOutJudge
+from opt2skill.rl.config import PPOConfig
 from opt2skill.rl import processes
 from opt2skill.rl.processes import Group
 from opt2skill.rl.session import (TrainRequest, check_checkpoints, group_size, held_out_judge, no_announce,
@@ -183,9 +184,10 @@ def dataset_expert(env: TrackingEnv, dataset, distill: DistillConfig) -> EnvExpe
 
 
 def finetune_trainer(env: TrackingEnv, dataset, distill: DistillConfig, run: Path | None, seed: int,
-                     group: Group = processes.ONE) -> Trainer:
-    """The PPO stage's trainer on `env` (the fine-tuning config's), with the expert anchor if enabled."""
-    trainer = Trainer(env, distill.finetune_ppo(), run, seed=seed, group=group)
+                     group: Group = processes.ONE, ppo: PPOConfig | None = None) -> Trainer:
+    """The PPO stage's trainer on `env` (the fine-tuning config's, from `ppo`'s settings), with the
+    expert anchor if enabled."""
+    trainer = Trainer(env, distill.finetune_ppo(ppo), run, seed=seed, group=group)
     if distill.finetune == "residual":
         residual.freeze_base(trainer.alg.actor, distill.student_ppo().hidden_dims)
     if distill.pace == "adaptive":
@@ -217,7 +219,7 @@ def _prepare(request: TrainRequest, distill: DistillConfig, distill_steps: int, 
     task = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
                            request.sampling)
     config = finetune_tracking_config(task, distill)
-    ppo = distill.finetune_ppo()
+    ppo = distill.finetune_ppo(request.ppo())
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
                    num_envs=request.num_envs, seed=request.seed,
@@ -292,7 +294,7 @@ def _ppo_stage(request: TrainRequest, dataset, robot, config, distill: DistillCo
     bank = ReferenceBank.from_dataset(robot, dataset, config.observations.end_effectors)
     with TrackingEnv(robot, bank, config, request.num_envs, seed=group.seed(request.seed), threads=threads,
                      device=_device(request, group)) as env:
-        trainer = finetune_trainer(env, dataset, distill, request.out, request.seed, group)
+        trainer = finetune_trainer(env, dataset, distill, request.out, request.seed, group, request.ppo())
         trainer.judge = judge
         if trainer.resume_latest():
             announce(resume_line(request.out, trainer.iteration, checkpoint.latest(request.out), "PPO"))

@@ -63,6 +63,8 @@ class RunSpec:
             del data["contacts"]
         if data["processes"] == 1:
             del data["processes"]
+        if not data["ppo"]["mixed_precision"]:  # float32, as every run before the option: left out, so they resume
+            del data["ppo"]["mixed_precision"]
         episodes, default = data["tracking"]["episodes"], dataclasses.asdict(EpisodeConfig())
         for key in LATER_EPISODE_KEYS:  # at their defaults they are what runs before them did: leave them out
             if episodes.get(key) == default[key]:

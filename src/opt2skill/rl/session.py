@@ -55,6 +55,7 @@ class TrainRequest:
     device: str = "cpu"  # physics backend: cpu (C MuJoCo) or cuda (MuJoCo Warp), opt2skill.sim.devices
     sampling: str = "uniform"  # where episodes start: uniform or adaptive (envs.start_sampling)
     procs: int = 1  # processes training together (rl.processes), each with num_envs worlds of its own
+    mixed_precision: bool = False  # bf16 autocast in PPO's update (rl.config.PPOConfig.mixed_precision)
 
     def check(self) -> None:
         if not (isinstance(self.steps, int) and self.steps >= 1):
@@ -79,6 +80,10 @@ class TrainRequest:
         check_device(self.device)  # e.g. --device cuda without a GPU: one error before anything is written
         if not (isinstance(self.procs, int) and 1 <= self.procs <= MAX_PROCS):
             raise ConfigError(f"--procs must be in [1, {MAX_PROCS}] processes, got {self.procs}")
+
+    def ppo(self) -> PPOConfig:
+        """The PPO settings this request changes from the defaults (a distilled run's PPO stage starts from them)."""
+        return PPOConfig(mixed_precision=self.mixed_precision)
 
     def threads_per_process(self, size: int) -> int:
         """--threads, or this machine's cores shared out among the group's processes on it."""
@@ -172,7 +177,7 @@ def prepare(request: TrainRequest, size: int, check_existing: bool = True) -> Pr
         check_reference_inputs(request.ablation, first.has_dynamics, first.source)
     config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
                              request.sampling)
-    ppo = PPOConfig()
+    ppo = request.ppo()
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
                    num_envs=request.num_envs, seed=request.seed,
