@@ -89,6 +89,17 @@ def test_bad_setting_is_one_clear_error(tmp_path):
         resolve("quick", {"histories": (0, 5)})
 
 
+def test_every_policy_of_an_experiment_trains_with_its_settings_options(tmp_path):
+    from opt2skill.experiment.runner import train_request
+
+    data = {"dataset": str(tmp_path / "data" / "to_train")}
+    for mixed in (False, True):
+        s = resolve("quick", {"mixed_precision": mixed})
+        request = train_request(s, tmp_path, "to", data, "pos_f_t", 10, "opt2skill experiment table3", threads=1)
+        assert request.out == tmp_path / "runs" / "to" and request.steps == s.train_steps and request.threads == 1
+        assert request.ppo().mixed_precision is mixed and request.device == s.device
+
+
 def test_a_folder_of_another_experiment_or_other_files_is_refused(tmp_path):
     claim_folder(tmp_path / "a", resolve("quick"))
     claim_folder(tmp_path / "a", resolve("quick"))  # the same settings: resumes
@@ -97,9 +108,11 @@ def test_a_folder_of_another_experiment_or_other_files_is_refused(tmp_path):
     with pytest.raises(ConfigError, match="holds another experiment .*setting: 'quick' there, 'full' now"):
         claim_folder(tmp_path / "a", resolve("full"))
     older = json.loads((tmp_path / "a" / "experiment.json").read_text())
-    del older["device"]  # a folder made before a setting existed: that setting counts as its default
+    del older["device"], older["mixed_precision"]  # a folder made before settings existed: they count as defaults
     (tmp_path / "a" / "experiment.json").write_text(json.dumps(older))
     claim_folder(tmp_path / "a", resolve("quick"))
+    with pytest.raises(ConfigError, match="mixed_precision: False there, True now"):
+        claim_folder(tmp_path / "a", resolve("quick", {"mixed_precision": True}))
     with pytest.raises(ConfigError, match="to_ablation: 'pos_f_t' there, 'pos' now"):
         claim_folder(tmp_path / "a", resolve("quick", {"to_ablation": "pos"}))
     (tmp_path / "b").mkdir()

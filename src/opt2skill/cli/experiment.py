@@ -50,6 +50,8 @@ def table3(
     to_ablation: str = typer.Option(None, "--to-ablation", help="The TO policies' inputs (pos, pos_f, pos_t, pos_f_t)."),
     seed: int = typer.Option(None, help="Seed of the training references and training; held-out references use seed + 1."),
     device: str = typer.Option(None, help="Training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp on a GPU)."),
+    mixed_precision: bool = typer.Option(False, "--mixed-precision", help="bf16 autocast in every policy's PPO update "
+                                         "(train --mixed-precision; part of the experiment's settings)."),
     workers: int = typer.Option(None, min=0, help="Generation processes, and policies trained at once on a CPU (0: every core)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
@@ -64,7 +66,7 @@ def table3(
         num_envs=num_envs, histories=tuple(int(h) for h in hist) if hist is not None else None,
         stairs=_numbers(stairs, "--stairs"), slopes=_numbers(slopes, "--slopes"), sweep_trials=sweep_trials,
         sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
-        workers=workers, device=device))
+        workers=workers, device=device, mixed_precision=mixed_precision or None))
     run_table3(settings, out, progress=not quiet)
 
 
@@ -110,6 +112,8 @@ def table4(
     timing: str = typer.Option(None, help="Wipe phase durations, s: 'task' (the task's own) or e.g. stroke=0.5,reach=0.5."),
     seed: int = typer.Option(None, help="Seed of the training references and training; held-out references use seed + 1."),
     device: str = typer.Option(None, help="Training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp on a GPU)."),
+    mixed_precision: bool = typer.Option(False, "--mixed-precision", help="bf16 autocast in every policy's PPO update "
+                                         "(train --mixed-precision; part of the experiment's settings)."),
     workers: int = typer.Option(None, min=0, help="Generation processes, and policies trained at once on a CPU (0: every core)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
@@ -125,5 +129,5 @@ def table4(
         distill_steps=distill_steps, num_envs=num_envs,
         history=history, transfer_force=transfer_force, transfer_height=transfer_height,
         transfer_desks=_numbers(transfer_desks, "--transfer-desks"), n_transfer=n_transfer, timing=_timing(timing),
-        seed=seed, device=device, workers=workers), kind=Table4Settings)
+        seed=seed, device=device, workers=workers, mixed_precision=mixed_precision or None), kind=Table4Settings)
     run_table4(settings, out, progress=not quiet)

@@ -58,17 +58,25 @@ def run_dir(out: Path, key: str) -> Path:
     return Path(out) / "runs" / key
 
 
+def train_request(s: Any, out: Path, key: str, data: dict[str, Any], ablation: str, history: int, command: str,
+                  threads: int | None = None):
+    """The `train` request of policy KEY: every policy of an experiment with the settings' budget and options."""
+    from opt2skill.rl import session
+
+    return session.TrainRequest(dataset=Path(data["dataset"]), out=run_dir(out, key), steps=s.train_steps,
+                                num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=command,
+                                device=s.device, threads=threads, mixed_precision=s.mixed_precision)
+
+
 def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: str, history: int, command: str,
                  progress: bool, threads: int | None = None) -> dict[str, Any]:
-    """A policy on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed, device and,
-    where the settings have it, distill_steps), into OUT/runs/KEY; resumes from the run's newest
-    checkpoint. PPO from scratch, or after distilling the optimizer's feedback expert when
-    `s.distill_steps` > 0 (rl.distill_session). `threads`: physics and torch threads (None: every core)."""
+    """A policy on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed, device,
+    mixed_precision and, where the settings have it, distill_steps), into OUT/runs/KEY; resumes from
+    the run's newest checkpoint. PPO from scratch, or after distilling the optimizer's feedback expert
+    when `s.distill_steps` > 0 (rl.distill_session). `threads`: physics and torch threads (None: every core)."""
     from opt2skill.rl import distill_session, session
 
-    request = session.TrainRequest(dataset=Path(data["dataset"]), out=run_dir(out, key), steps=s.train_steps,
-                                   num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=command,
-                                   device=s.device, threads=threads)
+    request = train_request(s, out, key, data, ablation, history, command, threads)
     announce = lambda line: console.print(line, highlight=False)  # noqa: E731
     distill_steps = getattr(s, "distill_steps", 0)
     start = time.perf_counter()

@@ -67,6 +67,7 @@ class ExperimentSettings(Settings):
     workers: int = 0  # generation processes, and policies trained at once on a CPU (0: every core)
     human: str | None = None  # folder of AMASS .npz / BVH clips; None: constructed clips
     device: str = "cpu"  # training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp), as `train --device`
+    mixed_precision: bool = False  # bf16 autocast in every policy's PPO update, as `train --mixed-precision`
 
     def check(self) -> None:
         problems = []

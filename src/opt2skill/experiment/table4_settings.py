@@ -39,6 +39,7 @@ class Table4Settings(Settings):
     seed: int = 0  # training references' seed and training's; held-out ones use seed + 1
     workers: int = 0  # generation processes, and policies trained at once on a CPU (0: every core)
     device: str = "cpu"
+    mixed_precision: bool = False  # bf16 autocast in every policy's PPO update, as `train --mixed-precision`
 
     def check(self) -> None:
         problems = []
