@@ -90,7 +90,7 @@ def test_bad_setting_is_one_clear_error(tmp_path):
 
 
 def test_every_policy_of_an_experiment_trains_with_its_settings_options(tmp_path):
-    from opt2skill.experiment.runner import train_request
+    from opt2skill.experiment.runner import precision_note, train_request
 
     data = {"dataset": str(tmp_path / "data" / "to_train")}
     for mixed in (False, True):
@@ -98,6 +98,7 @@ def test_every_policy_of_an_experiment_trains_with_its_settings_options(tmp_path
         request = train_request(s, tmp_path, "to", data, "pos_f_t", 10, "opt2skill experiment table3", threads=1)
         assert request.out == tmp_path / "runs" / "to" and request.steps == s.train_steps and request.threads == 1
         assert request.ppo().mixed_precision is mixed and request.device == s.device
+        assert ("bf16" in precision_note(s)) is mixed  # the tables' notes say how the updates computed
 
 
 def test_a_folder_of_another_experiment_or_other_files_is_refused(tmp_path):

@@ -68,6 +68,11 @@ def train_request(s: Any, out: Path, key: str, data: dict[str, Any], ablation: s
                                 device=s.device, threads=threads, mixed_precision=s.mixed_precision)
 
 
+def precision_note(s: Any) -> str:
+    """How every policy's PPO updates computed, for a table's notes, where it is not plain float32."""
+    return ", PPO updates in bf16 autocast (--mixed-precision)" if s.mixed_precision else ""
+
+
 def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: str, history: int, command: str,
                  progress: bool, threads: int | None = None) -> dict[str, Any]:
     """A policy on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed, device,
