@@ -16,6 +16,7 @@ VALIDATION = 1.0  # s per reference (the expert's force replay included)
 # core, one thread each): 2 x 1177 on table3's walks, 2026-12-03 (1300 before the processes stopped
 # oversubscribing the cores); not measured on the wipe at that scale.
 TRAIN_STEPS_PER_S = 2350.0
+MIXED_TRAIN_STEPS_PER_S = 4400.0  # the same with --mixed-precision (bf16 in the PPO update): 4.4k to 4.9k, 2026-12-03
 DISTILL_STEPS_PER_S = 400.0  # environment steps/s distilling wipes, 64 worlds, two runs on the two cores (2026-12-02,
 # before the thread fix: pessimistic)
 TRAIN_SETUP = 20.0  # s per policy: environment, references, checkpoints (29 to 69 s for 3,072 steps at load 6-7)
@@ -37,7 +38,8 @@ def estimate(s: Table4Settings, references: int) -> dict[str, float]:
     seconds = motion_seconds(s)
     frames = seconds * 200
     generate = references * (SOLVE_PER_MOTION_SECOND * seconds + VALIDATION) / min(workers, max(references, 1))
-    train = len(s.ablations) * (TRAIN_SETUP + s.train_steps / TRAIN_STEPS_PER_S + s.distill_steps / DISTILL_STEPS_PER_S)
+    rate = MIXED_TRAIN_STEPS_PER_S if s.mixed_precision else TRAIN_STEPS_PER_S
+    train = len(s.ablations) * (TRAIN_SETUP + s.train_steps / rate + s.distill_steps / DISTILL_STEPS_PER_S)
     evaluate = (len(s.ablations) * len(s.forces) + len(s.transfer_desks)) * frames * EVAL_STEP  # one batch each
     return {"motion_s": seconds, "datasets_h": generate / 3600, "training_h": train / 3600, "evaluation_h": evaluate / 3600}
 
