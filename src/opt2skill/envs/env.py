@@ -68,7 +68,7 @@ class TrackingEnv:
             raise ConfigError(f"number of environments must be a positive integer, got {num_envs}")
         self.robot, self.bank, self.config = robot, bank, config
         self.num_envs, self.nu = int(num_envs), robot.nu
-        self.device = str(device)  # the physics backend's (opt2skill.sim.devices); with `sim` given, its caller's
+        self.device = str(device)  # the physics backend asked for (opt2skill.sim.devices); the PPO learner follows it
         self.rng = np.random.default_rng(seed)
         grounds, ground = bank.grounds()
         prop_sets, self._prop_set = bank.prop_sets()  # (trajectories,) index of each reference's props

@@ -150,8 +150,8 @@ def _data_notes(s: Table4Settings, steps: Steps) -> list[str]:
     first = (f"{s.distill_steps:,} environment steps distilling the optimizer's feedback expert, then PPO for"
              if s.distill_steps else "PPO from scratch for")
     notes.append(f"same pipeline for every policy on the training set: {first} {s.train_steps:,} environment "
-                 f"steps on {s.num_envs} worlds, seed {s.seed}, history {s.history}{precision_note(s)}; only the reference force / torque "
-                 f"observations and rewards differ; {timing}")
+                 f"steps on {s.num_envs} worlds, seed {s.seed}, history {s.history}{precision_note(s)}; only the "
+                 f"reference force / torque observations and rewards differ; {timing}")
     return notes
 
 

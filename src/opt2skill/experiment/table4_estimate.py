@@ -17,8 +17,9 @@ VALIDATION = 1.0  # s per reference (the expert's force replay included)
 # oversubscribing the cores); not measured on the wipe at that scale.
 TRAIN_STEPS_PER_S = 2350.0
 MIXED_TRAIN_STEPS_PER_S = 4400.0  # the same with --mixed-precision (bf16 in the PPO update): 4.4k to 4.9k, 2026-12-03
-DISTILL_STEPS_PER_S = 400.0  # environment steps/s distilling wipes, 64 worlds, two runs on the two cores (2026-12-02,
-# before the thread fix: pessimistic)
+# Environment steps/s distilling wipes, 64 worlds, two runs on the two cores (2026-12-02, before the
+# thread fix, so pessimistic; not measured since).
+DISTILL_STEPS_PER_S = 400.0
 TRAIN_SETUP = 20.0  # s per policy: environment, references, checkpoints (29 to 69 s for 3,072 steps at load 6-7)
 EVAL_STEP = 0.003  # s per policy step of one evaluation's batch of worlds: 153 s for 24 evaluations of 2,280 steps
 
