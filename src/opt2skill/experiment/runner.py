@@ -13,7 +13,7 @@ from typing import Any
 from opt2skill.cli.console import console
 from opt2skill.experiment.settings import Settings, claim_folder
 from opt2skill.experiment.steps import DONE, Steps, Unavailable
-from opt2skill.rl.run import PROGRESS_FILE
+from opt2skill.rl.run import PROGRESS_FILE, read_progress
 
 
 def run_experiment(s: Settings, out: Path, total: int, body: Callable[[Path, Steps], dict[str, Path]]) -> dict[str, Path]:
@@ -186,20 +186,12 @@ def _steps_at_checkpoint(stage: Path) -> int:
     newest = checkpoint.latest(stage)
     if newest is None:
         return 0
-    iteration = int(newest.stem.removeprefix("model_"))
-    steps = 0
+    iteration = checkpoint.iteration_of(newest)
     try:
-        lines = (stage / PROGRESS_FILE).read_text().splitlines()
-    except OSError:
+        rows = read_progress(stage)
+    except (OSError, ValueError):  # unreadable: the bar starts at 0 rather than stopping the training
         return 0
-    for line in lines:
-        try:
-            row = json.loads(line)
-        except ValueError:
-            continue  # a partial last line
-        if isinstance(row, dict) and row.get("iteration", iteration + 1) <= iteration:
-            steps = int(row.get("env_steps", steps))
-    return steps
+    return max((int(r["env_steps"]) for r in rows if r["iteration"] <= iteration), default=0)
 
 
 def _last_env_steps(log: Path) -> int:

@@ -83,6 +83,14 @@ def latest(run: Path) -> Path | None:
     return found[-1] if found else None
 
 
+def iteration_of(path: Path) -> int:
+    """The iteration a checkpoint file holds, from its name (model_NNNNNNNN.pt), without loading it."""
+    match = _NAME.match(Path(path).name)
+    if match is None:
+        raise ValueError(f"{path} is not named like a checkpoint (model_NNNNNNNN.pt)")
+    return int(match.group(1))
+
+
 def identity(robot: str, robot_hash: str, task: str, ablation: str, history: int, stride: int) -> dict[str, Any]:
     """What a checkpoint's networks are for: their inputs and outputs depend on all of it."""
     return {"robot": robot, "robot_hash": robot_hash, "task": task, "ablation": ablation, "history": history,
