@@ -92,6 +92,31 @@ def test_mixed_precision_reaches_rsl_rl_updates_and_is_part_of_a_runs_configurat
     assert any(not torch.equal(a, b) for a, b in zip(after, before)) and math.isfinite(figures["loss/surrogate"])
 
 
+def test_native_bf16_is_read_from_the_cpu_flags():
+    from opt2skill.rl.config import native_bf16
+
+    zen4 = "processor\t: 0\nflags\t\t: fpu sse avx2 avx512f avx512_bf16 avx512_vnni\nbugs\t\t: sysret_ss_attrs\n"
+    older = "processor\t: 0\nflags\t\t: fpu sse avx2 avx512f avx512bw\nbugs\t\t: avx512_bf16_is_not_a_flag_here\n"
+    assert native_bf16(zen4) is True and native_bf16(older) is False
+    assert native_bf16("flags\t\t: amx_bf16 amx_tile\n") is True
+
+
+def test_train_warns_once_when_mixed_precision_would_emulate_bf16(monkeypatch, capsys):
+    from pathlib import Path
+
+    import opt2skill.rl.config as config
+    from opt2skill.cli.train import _warn_emulated_bf16
+    from opt2skill.rl.session import TrainRequest
+
+    request = TrainRequest(dataset=Path("d"), out=Path("r"), mixed_precision=True)
+    for native, warned in ((False, True), (True, False), (None, False)):
+        monkeypatch.setattr(config, "native_bf16", lambda native=native: native)
+        _warn_emulated_bf16(request)
+        assert ("without native bf16" in capsys.readouterr().out) is warned
+    _warn_emulated_bf16(TrainRequest(dataset=Path("d"), out=Path("r")))  # float32: nothing to say
+    assert capsys.readouterr().out == ""
+
+
 def test_checkpoints_are_atomic_keep_the_newest_and_restore_the_trainer(tmp_path):
     traj, _ = recorded_reference(steps=30)
     env = make_env([traj], num_envs=4)

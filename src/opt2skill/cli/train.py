@@ -35,6 +35,16 @@ def _say(line: str) -> None:
     console.print(line, highlight=False, soft_wrap=True)
 
 
+def _warn_emulated_bf16(request) -> None:
+    """One line when --mixed-precision would run the learner's bf16 on a CPU that emulates it."""
+    from opt2skill.rl.config import native_bf16
+    from opt2skill.sim.devices import learner_device
+
+    if request.mixed_precision and learner_device(request.device, request.procs) == "cpu" and native_bf16() is False:
+        _say("warning: --mixed-precision on a CPU without native bf16 (no avx512_bf16 or amx_bf16 in /proc/cpuinfo): "
+             "the PPO update may run slower than in float32; benchmarks/env_throughput.py measures both")
+
+
 @app.command()
 def train(
     dataset: Path = typer.Option(..., "--dataset", help="Reference dataset directory (opt2skill generate)."),
@@ -95,6 +105,7 @@ def train(
                            judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed), device=device,
                            procs=procs, mixed_precision=mixed_precision)
     request.check()
+    _warn_emulated_bf16(request)
     _terminate_as_interrupt()
     if init == "distill":
         from opt2skill.rl.distill_session import train as run_distilled

@@ -14,6 +14,19 @@ from dataclasses import dataclass
 from opt2skill.errors import ConfigError
 
 
+def native_bf16(cpuinfo: str | None = None) -> bool | None:
+    """Whether this CPU computes bf16 natively (`avx512_bf16` or `amx_bf16` among its flags), from
+    `cpuinfo` (default: /proc/cpuinfo); None where that cannot be read (not Linux)."""
+    if cpuinfo is None:
+        try:
+            with open("/proc/cpuinfo") as f:
+                cpuinfo = f.read()
+        except OSError:
+            return None
+    flags = {flag for line in cpuinfo.splitlines() if line.startswith("flags") for flag in line.split(":", 1)[-1].split()}
+    return bool(flags & {"avx512_bf16", "amx_bf16"})
+
+
 @dataclass(frozen=True)
 class PPOConfig:
     hidden_dims: tuple[int, ...] = (512, 512, 256, 256)  # actor and critic, Section III-B
