@@ -23,8 +23,9 @@ Prints on this machine:
 With `--device cuda` (MuJoCo Warp on the GPU, the PPO learner on the same GPU; `warp-cpu` runs the
 same on Warp's CPU device, to check the plumbing) it runs whole PPO iterations instead, per N (default
 1024 to 8192 worlds), and reports the environment's policy steps/s while collecting, the learner's
-samples/s and the policy steps/s of training as a whole (collection and update), against issue 18's
-target of 300 M steps in an hour (83.3k/s). There is no `rollout` ceiling on that path.
+samples/s and the policy steps/s of training as a whole (collection and update), in float32 and with
+bf16 autocast, against issue 18's target of 300 M steps in an hour (83.3k/s). There is no `rollout`
+ceiling on that path.
 
     .venv/bin/python benchmarks/env_throughput.py [--dataset DIR] [--seconds 6] [--worlds 16 64 256]
     .venv/bin/python benchmarks/env_throughput.py --device cuda [--worlds 1024 2048 4096 8192] [--iterations 5]
@@ -167,11 +168,12 @@ def learner_rate(robot, config, bank, threads: int, repeats: int = 3, mixed_prec
 TARGET = 300e6 / 3600  # issue 18: the paper's 300 M steps in an hour on one GPU, learning included
 
 
-def device_rates(robot, config, bank, device: str, nworld: int, iterations: int) -> dict[str, float]:
+def device_rates(robot, config, bank, device: str, nworld: int, iterations: int,
+                 mixed_precision: bool = False) -> dict[str, float]:
     """Whole PPO iterations of `nworld` worlds with physics on `device` and the learner where
     `rl.trainer` puts it; medians over `iterations` after one untimed (kernels loaded, graphs captured)."""
     with TrackingEnv(robot, bank, config, nworld, seed=0, device=device) as env:
-        trainer = Trainer(env, PPOConfig(), None, seed=0)
+        trainer = Trainer(env, PPOConfig(mixed_precision=mixed_precision), None, seed=0)
         trainer.warm_up_normalizers()
         trainer.train_iteration()
         rows = [trainer.train_iteration() for _ in range(iterations)]
@@ -188,10 +190,11 @@ def on_device(robot, config, bank, device: str, worlds: list[int], iterations: i
     print(f"device {device}: PPO iterations ({PPOConfig().steps_per_env(0.005)} steps of every world, then "
           f"{PPOConfig().num_learning_epochs} epochs), medians of {iterations}")
     for nworld in worlds:
-        r = device_rates(robot, config, bank, device, nworld, iterations)
-        print(f"env  N={nworld:5d} collecting {r['env']:9.0f} policy steps/s; learner on {r['learner device']}: "
-              f"{r['learner']:9.0f} samples/s; training {r['training']:9.0f} policy steps/s "
-              f"= {r['training'] / TARGET:6.1%} of the 83.3k/s target (300 M steps in 1 h)")
+        for mixed in (False, True):
+            r = device_rates(robot, config, bank, device, nworld, iterations, mixed)
+            print(f"env  N={nworld:5d} collecting {r['env']:9.0f} policy steps/s; learner on {r['learner device']} "
+                  f"({'bf16 autocast' if mixed else 'float32'}): {r['learner']:9.0f} samples/s; training "
+                  f"{r['training']:9.0f} policy steps/s = {r['training'] / TARGET:6.1%} of the 83.3k/s target")
 
 
 def main() -> None:
