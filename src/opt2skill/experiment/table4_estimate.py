@@ -16,7 +16,7 @@ VALIDATION = 1.0  # s per reference (the expert's force replay included)
 # core, one thread each): 2 x 1177 on table3's walks, 2026-12-03 (1300 before the processes stopped
 # oversubscribing the cores); not measured on the wipe at that scale.
 TRAIN_STEPS_PER_S = 2350.0
-MIXED_TRAIN_STEPS_PER_S = 4400.0  # the same with --mixed-precision (bf16 in the PPO update): 4.4k to 4.9k, 2026-12-03
+MIXED_TRAIN_STEPS_PER_S = 6000.0  # the same with --mixed-precision (bf16 in the PPO update): 6.0k to 6.2k, 2026-12-03
 # Environment steps/s distilling wipes, 64 worlds, two runs on the two cores (2026-12-02, before the
 # thread fix, so pessimistic; not measured since).
 DISTILL_STEPS_PER_S = 400.0
