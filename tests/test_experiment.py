@@ -48,8 +48,11 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     runs = {k[len("train-"):]: s["result"] for k, s in steps.items() if k.startswith("train-")}
     assert len({r["env_steps"] for r in runs.values()}) == 1
     assert runs["ik"]["ablation"] == runs["human"]["ablation"] == "pos" and runs["hist0"]["history"] == 0
-    # --workers 2: the four policies trained two at a time in their own processes, then recorded by their steps
-    assert "training 4 policies, 2 at a time" in r.stdout and r.stdout.count(": ready (") == 4, r.stdout[-3000:]
+    # --workers 2: the four policies trained two at a time in their own processes, then recorded by their
+    # steps; each pair evaluated (and a data row's policy swept) before the next pair trains
+    assert r.stdout.count("training 2 policies, 2 at a time") == 2 and r.stdout.count(": ready (") == 4, r.stdout[-3000:]
+    order = [line for line in r.stdout.splitlines() if "training 2 policies" in line or "evaluate " in line]
+    assert ["training" in line for line in order] == [True, False, False, True, False, False], order
     shared = max(1, (os.cpu_count() or 1) // 2)  # the cores shared out: not every core in each process
     for key in runs:
         first = json.loads((out / "runs" / key / "run.json").read_text())["invocations"][0]
@@ -74,6 +77,44 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     assert again.stdout.count("skipped") == 22
     assert stamps == {p.name: p.stat().st_mtime_ns for p in (out / "steps").glob("*.json")}
     assert time.perf_counter() - start < 60
+
+
+def _forget(out, *steps):
+    for name in steps:
+        (out / "steps" / f"{name}.json").unlink()
+
+
+@pytest.mark.slow
+def test_a_folder_carried_without_its_datasets_generates_them_again_and_checks_them(tmp_path):
+    """An experiment folder moved without data/ resumes: a dataset a step still reads is generated
+    again and must hold the recorded references (fingerprints and joint-position checksums)."""
+    import shutil
+
+    out = tmp_path / "t3"
+    tiny = [*TINY, "--histories", "10", "--train-steps", "100"]
+    assert subprocess.run([CLI, "experiment", "table3", "--out", str(out), *tiny], capture_output=True, text=True,
+                          timeout=900).returncode == 0
+    recorded = json.loads((out / "steps" / "data-ik-test.json").read_text())["result"]
+    assert len(recorded["contents"]) == recorded["counts"]["accepted"] and len(recorded["contents"][0][0]) == 16
+    shutil.rmtree(out / "data")  # every dataset gone; only the IK ones are read again (by the evaluation)
+    _forget(out, "eval-ik", "table3")
+    r = subprocess.run([CLI, "experiment", "table3", "--out", str(out), *tiny], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "data-ik-test: its dataset" in r.stdout and r.stdout.count("generating it again") == 2, r.stdout[-3000:]
+    again = json.loads((out / "steps" / "data-ik-test.json").read_text())["result"]
+    assert again["contents"] == recorded["contents"] and again["regenerated"] == 1
+    assert (out / "eval" / "ik" / "eval.json").is_file() and not (out / "data" / "to_train").exists()
+    # references that differ from the recorded ones stop the experiment, naming the dataset
+    marker = out / "steps" / "data-ik-test.json"
+    entry = json.loads(marker.read_text())
+    entry["result"]["contents"][0][1] *= 1.001
+    marker.write_text(json.dumps(entry))
+    shutil.rmtree(out / "data" / "ik_test")
+    _forget(out, "eval-ik")  # the training set is there: only the held-out one is generated
+    bad = subprocess.run([CLI, "experiment", "table3", "--out", str(out), *tiny], capture_output=True, text=True,
+                         timeout=900)
+    assert bad.returncode != 0 and "ik_test was generated again but holds other references" in bad.stderr, bad.stderr[-2000:]
+    assert "1 with other joint positions" in bad.stderr
 
 
 def test_bad_setting_is_one_clear_error(tmp_path):

@@ -7,7 +7,13 @@ validation (measured at the full setting: TO 2 %, IK 16 %, the constructed human
 joint speed), so a dataset is topped up with the next indices or clips until that many are
 accepted, up to `TOP_UP_LIMIT` times the count tried; a user's human folder tops up only with
 the clips it has. Indices and clips are deterministic, so a topped-up dataset is the same whatever
-the steps it took."""
+the steps it took.
+
+A finished data step records its references (`contents`: each one's fingerprint and a checksum of
+its joint positions). An experiment folder carried to another machine without its `data/` (the
+datasets are the bulk of it) gets them generated again by `present`, and they must be the same
+references, or the resumed training would mix two datasets.
+"""
 
 from __future__ import annotations
 
@@ -16,8 +22,10 @@ from pathlib import Path
 from typing import Any
 
 from opt2skill.experiment.settings import SOURCE_TASKS, ExperimentSettings
-from opt2skill.experiment.steps import Unavailable
+from opt2skill.errors import DataError
+from opt2skill.experiment.steps import Steps, Unavailable
 
+CHECKSUM_RTOL = 1e-9  # a regenerated reference's joint-position checksum against the recorded one
 TOP_UP_LIMIT = 3  # at most this many references (or clips) tried per one wanted
 DEFAULT_WALK_DURATION = 14.0  # s, the walk task's own: a dataset made by plain `generate walk` is reused as is
 CLIP_SUFFIXES = (".npz", ".bvh")
@@ -43,7 +51,61 @@ def build(source: str, split: str, s: ExperimentSettings, out: Path, progress: b
         tried = min(TOP_UP_LIMIT * wanted, tried + math.ceil((wanted - accepted) / rate))
     result = dataset_result(summary, folder, f"{source} {split}")
     result["wanted"] = wanted
+    result["contents"] = contents(folder)
     return result
+
+
+def present(step: str, source: str, split: str, s: ExperimentSettings, out: Path, steps: Steps,
+            progress: bool = True) -> dict[str, Any]:
+    """Finished data step `step`'s record, its dataset on disk: one that is gone (the folder was
+    carried without `data/`) is generated again and checked against the recorded `contents`; a
+    record made before they were recorded gets them from the dataset that is there."""
+    record = steps.record(step)
+    if record is None or record["status"] != "done":
+        return record
+    result = record["result"]
+    folder = Path(result["dataset"])
+    if folder.is_dir():
+        if "contents" not in result:
+            steps.amend(step, {**result, "contents": contents(folder)})
+        return steps.record(step)
+    from opt2skill.cli.console import console
+
+    console.print(f"{step}: its dataset {folder} is gone; generating it again (the same seed and indices)",
+                  highlight=False, soft_wrap=True)
+    rebuilt = build(source, split, s, out, progress)
+    if "contents" in result:
+        _check_same(result["contents"], rebuilt["contents"], folder)
+    steps.amend(step, {**result, "contents": rebuilt["contents"],
+                       "regenerated": result.get("regenerated", 0) + 1})
+    return steps.record(step)
+
+
+def contents(folder: Path) -> list[list]:
+    """[fingerprint, checksum] of each accepted reference: its task and parameters, and the sum of
+    the absolute values of its joint positions over every frame."""
+    import numpy as np
+
+    from opt2skill.data.reader import Dataset
+    from opt2skill.eval.references import position_fingerprint
+
+    dataset = Dataset.open(folder)
+    return [[position_fingerprint(dataset, i), float(np.abs(dataset.frames(i, ["qpos"])["qpos"]).sum())]
+            for i in range(len(dataset))]
+
+
+def _check_same(recorded: list[list], rebuilt: list[list], folder: Path) -> None:
+    """DataError unless the regenerated references are the recorded ones (checksums to `CHECKSUM_RTOL`)."""
+    import math
+
+    old, new = dict(map(tuple, recorded)), dict(map(tuple, rebuilt))
+    missing, extra = sorted(set(old) - set(new)), sorted(set(new) - set(old))
+    moved = [k for k in set(old) & set(new) if not math.isclose(old[k], new[k], rel_tol=CHECKSUM_RTOL)]
+    if missing or extra or moved:
+        raise DataError(f"{folder} was generated again but holds other references than the experiment trained on "
+                        f"({len(missing)} missing, {len(extra)} new, {len(moved)} with other joint positions, of "
+                        f"{len(old)}); this machine's solver does not reproduce them: move its data/ here too, or "
+                        "start the experiment in a new --out")
 
 
 def _make(source: str, split: str, s: ExperimentSettings, out: Path, n: int, seed: int, folder: Path,

@@ -38,6 +38,13 @@ class Steps:
         path = self.marker(name)
         return json.loads(path.read_text()) if path.is_file() else None
 
+    def amend(self, name: str, result: dict[str, Any]) -> None:
+        """Replace finished step `name`'s result (what it recorded, with more added)."""
+        entry = self.record(name)
+        if entry is None:
+            raise KeyError(name)
+        write_json(self.marker(name), {**entry, "result": result})
+
     def run(self, name: str, what: str, work: Callable[[], dict[str, Any]]) -> dict[str, Any]:
         """Run `work` unless step `name` is marked; its result (JSON-able) is the marker's `result`."""
         self.count += 1

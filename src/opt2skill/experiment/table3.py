@@ -10,13 +10,19 @@
 5. stair and slope sweeps of each source's policy, one success-rate figure (`figure`);
 6. where everything is, provenance and the time of every step.
 
+Policies train `--workers` at a time (`runner.train_policies_at_once`); each is evaluated, and a
+data row's policy swept, as soon as its batch is trained, so that results arrive early and a later
+session needs only their reports, not their policies.
+
 Every step is marked on disk when done (`steps`), so a rerun skips it; training resumes from its
-newest checkpoint. A source without usable references is recorded and the rest goes on.
+newest checkpoint, and a dataset that is gone is generated again (`sources.present`). A source
+without usable references is recorded and the rest goes on.
 """
 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -43,26 +49,51 @@ def run_table3(s: ExperimentSettings, out: Path, progress: bool = True) -> dict[
     rows = policies(s)
 
     def body(out: Path, steps: Steps) -> dict[str, Path]:
-        data = {(src, split): steps.run(f"data-{src}-{split}", f"{SOURCE_LABELS[src]} references ({split})",
-                                        lambda src=src, split=split: sources.build(src, split, s, out, progress))
-                for src in SOURCES for split in ("train", "test")}
-        _train_at_once(s, out, rows, data, steps, progress)
-        for key, (src, h) in rows.items():
-            steps.run(f"train-{key}", f"train {key} ({SOURCE_LABELS[src]}, history {h})",
-                      lambda key=key, src=src, h=h: _train(s, out, key, src, h, data, progress))
-        for key, (src, _) in rows.items():
-            steps.run(f"eval-{key}", f"evaluate {key} on held-out {SOURCE_LABELS[src]} references",
-                      lambda key=key, src=src: _evaluate(s, out, key, src, steps, progress))
-        steps.run("table3", "Table III", lambda: _table(s, out, steps))
+        data = {}
         for src in SOURCES:
-            for terrain in TERRAINS:
-                steps.run(f"sweep-{src}-{terrain}", f"{terrain} sweep of {SOURCE_LABELS[src]}",
-                          lambda src=src, terrain=terrain: _sweep(s, out, src, terrain, steps, progress))
+            for split in ("train", "test"):
+                name = f"data-{src}-{split}"
+                steps.run(name, f"{SOURCE_LABELS[src]} references ({split})",
+                          lambda src=src, split=split: sources.build(src, split, s, out, progress))
+                data[(src, split)] = _data_present(s, out, steps, name, src, split, rows, progress)
+        for batch in batches(s, rows):
+            _train_at_once(s, out, batch, data, steps, progress)
+            for key, (src, h) in batch.items():
+                steps.run(f"train-{key}", f"train {key} ({SOURCE_LABELS[src]}, history {h})",
+                          lambda key=key, src=src, h=h: _train(s, out, key, src, h, data, progress))
+            for key, (src, _) in batch.items():
+                steps.run(f"eval-{key}", f"evaluate {key} on held-out {SOURCE_LABELS[src]} references",
+                          lambda key=key, src=src: _evaluate(s, out, key, src, steps, progress))
+                for terrain in TERRAINS if key in SOURCES else ():
+                    steps.run(f"sweep-{src}-{terrain}", f"{terrain} sweep of {SOURCE_LABELS[src]}",
+                              lambda src=src, terrain=terrain: _sweep(s, out, src, terrain, steps, progress))
+        steps.run("table3", "Table III", lambda: _table(s, out, steps))
         steps.run("fig3", "Fig. 3 (success rate on terrain)", lambda: _figure(s, out, steps))
         return _outputs(s, out, rows, steps)
 
     total = 2 * len(SOURCES) + 2 * len(rows) + 1 + len(SOURCES) * len(TERRAINS) + 1
     return run_experiment(s, out, total, body)
+
+
+def batches(s: ExperimentSettings, rows: dict[str, tuple[str, int]]) -> list[dict[str, tuple[str, int]]]:
+    """The policies in the order of `rows`, as many at a time as train side by side (one on a GPU)."""
+    size = 1 if s.device != "cpu" else max(1, s.workers or os.cpu_count() or 1)
+    keys = list(rows)
+    return [{key: rows[key] for key in keys[i:i + size]} for i in range(0, len(keys), size)]
+
+
+def _data_present(s: ExperimentSettings, out: Path, steps: Steps, name: str, source: str, split: str,
+                  rows: dict[str, tuple[str, int]], progress: bool) -> dict:
+    """Data step `name`'s record, its dataset generated again if it is gone and a step that has
+    not run yet reads it: training, evaluation and sweeps read both splits (the training set tells
+    which references a policy has seen)."""
+    readers = [f"{stage}-{key}" for key, (src, _) in rows.items() if src == source for stage in ("eval", "train")]
+    readers += [f"sweep-{source}-{terrain}" for terrain in TERRAINS]
+    waiting = [step for step in readers if steps.record(step) is None]
+    record = steps.record(name)
+    if waiting and record is not None and record["status"] == DONE:
+        return sources.present(name, source, split, s, out, steps, progress)
+    return record
 
 
 def eval_dir(out: Path, key: str) -> Path:
