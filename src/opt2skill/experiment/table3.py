@@ -49,14 +49,11 @@ def run_table3(s: ExperimentSettings, out: Path, progress: bool = True) -> dict[
     rows = policies(s)
 
     def body(out: Path, steps: Steps) -> dict[str, Path]:
-        data = {}
-        for src in SOURCES:
-            for split in ("train", "test"):
-                name = f"data-{src}-{split}"
-                steps.run(name, f"{SOURCE_LABELS[src]} references ({split})",
-                          lambda src=src, split=split: sources.build(src, split, s, out, progress))
-                data[(src, split)] = _data_present(s, out, steps, name, src, split, rows, progress)
+        data = {(src, split): steps.run(f"data-{src}-{split}", f"{SOURCE_LABELS[src]} references ({split})",
+                                        lambda src=src, split=split: sources.build(src, split, s, out, progress))
+                for src in SOURCES for split in ("train", "test")}
         for batch in batches(s, rows):
+            data.update(_data_present(s, out, steps, batch, progress))
             _train_at_once(s, out, batch, data, steps, progress)
             for key, (src, h) in batch.items():
                 steps.run(f"train-{key}", f"train {key} ({SOURCE_LABELS[src]}, history {h})",
@@ -82,18 +79,21 @@ def batches(s: ExperimentSettings, rows: dict[str, tuple[str, int]]) -> list[dic
     return [{key: rows[key] for key in keys[i:i + size]} for i in range(0, len(keys), size)]
 
 
-def _data_present(s: ExperimentSettings, out: Path, steps: Steps, name: str, source: str, split: str,
-                  rows: dict[str, tuple[str, int]], progress: bool) -> dict:
-    """Data step `name`'s record, its dataset generated again if it is gone and a step that has
-    not run yet reads it: training, evaluation and sweeps read both splits (the training set tells
-    which references a policy has seen)."""
-    readers = [f"{stage}-{key}" for key, (src, _) in rows.items() if src == source for stage in ("eval", "train")]
-    readers += [f"sweep-{source}-{terrain}" for terrain in TERRAINS]
-    waiting = [step for step in readers if steps.record(step) is None]
-    record = steps.record(name)
-    if waiting and record is not None and record["status"] == DONE:
-        return sources.present(name, source, split, s, out, steps, progress)
-    return record
+def _data_present(s: ExperimentSettings, out: Path, steps: Steps, batch: dict[str, tuple[str, int]],
+                  progress: bool) -> dict[tuple[str, str], dict]:
+    """The data steps' records of the sources of `batch`, each dataset generated again if it is gone
+    and a step of the batch that has not run yet reads it: training, evaluation and sweeps read both
+    splits of their source (the training set tells which references a policy has seen)."""
+    records = {}
+    for source in dict.fromkeys(src for src, _ in batch.values()):
+        readers = [f"{stage}-{key}" for key, (src, _) in batch.items() if src == source for stage in ("train", "eval")]
+        readers += [f"sweep-{source}-{terrain}" for terrain in TERRAINS if source in batch]
+        waiting = any(steps.record(step) is None for step in readers)
+        for split in ("train", "test"):
+            name = f"data-{source}-{split}"
+            records[(source, split)] = (sources.present(name, source, split, s, out, steps, progress) if waiting
+                                        else steps.record(name))
+    return records
 
 
 def eval_dir(out: Path, key: str) -> Path:
