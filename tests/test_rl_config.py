@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 
 import pytest
@@ -46,6 +47,13 @@ def test_configs_round_trip_through_json_and_runs_refuse_another_config(tmp_path
     other = dataclasses.replace(spec, tracking=tracking_config("walk", "pos_t", 10), seed=2)
     with pytest.raises(ConfigError, match=r"different configuration \(seed: 1 -> 2; tracking.observations.history: 5 -> 10\)"):
         open_run(run, other, {})
+    # the run and its dataset moved (another checkout): the same dataset identity and size resume there
+    moved = dataclasses.replace(spec, dataset="/elsewhere/d")
+    assert open_run(run, moved, {"command": "c"}) is True
+    assert read_spec(run) == moved
+    assert json.loads((run / "run.json").read_text())["invocations"][-1]["dataset_moved_from"] == "/d"
+    with pytest.raises(ConfigError, match=r"different configuration \(trajectories: 3 -> 4\)"):
+        open_run(run, dataclasses.replace(moved, dataset="/d", trajectories=4), {})
     (tmp_path / "busy").mkdir()
     (tmp_path / "busy" / "file").write_text("x")
     with pytest.raises(ConfigError, match="not a training run"):

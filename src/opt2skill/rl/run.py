@@ -7,7 +7,10 @@
     RUN/progress.jsonl      the same figures, one JSON line per iteration
 
 Rerunning a command on an existing RUN resumes it if the identity is the same; any difference is an
-error naming the differing keys, so a run never mixes two configurations.
+error naming the differing keys, so a run never mixes two configurations. The one exception is the
+dataset's path: a run and its dataset moved together (another machine, another checkout) resume
+when the dataset's identity and size are the same, and run.json then records the new path and
+the invocation where it moved from.
 """
 
 from __future__ import annotations
@@ -150,7 +153,7 @@ def check_run(run: Path, spec: RunSpec) -> dict[str, Any] | None:
     run = Path(run)
     if (run / RUN_FILE).is_file():
         data = read_run(run)
-        diff = differences(data["identity"], spec.to_dict())
+        diff = [d for d in differences(data["identity"], spec.to_dict()) if not d.startswith("dataset: ")]
         if diff:
             shown = "; ".join(diff[:6]) + (f"; and {len(diff) - 6} more" if len(diff) > 6 else "")
             raise ConfigError(f"{run} is a run with a different configuration ({shown}); choose another --out")
@@ -167,6 +170,9 @@ def open_run(run: Path, spec: RunSpec, invocation: dict[str, Any]) -> bool:
     data = check_run(run, spec)
     entry = {"started": datetime.datetime.now().isoformat(timespec="seconds"), **invocation}
     if data is not None:
+        if data["identity"]["dataset"] != spec.dataset:  # the same dataset (identity and size), moved
+            entry["dataset_moved_from"] = data["identity"]["dataset"]
+            data["identity"]["dataset"] = spec.dataset
         data["invocations"].append(entry)
         write_json(run / RUN_FILE, data)
         return True
