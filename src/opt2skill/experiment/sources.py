@@ -23,7 +23,7 @@ from typing import Any
 
 from opt2skill.experiment.settings import SOURCE_TASKS, ExperimentSettings
 from opt2skill.errors import DataError
-from opt2skill.experiment.steps import Steps, Unavailable
+from opt2skill.experiment.steps import DONE, Steps, Unavailable
 
 CHECKSUM_RTOL = 1e-9  # a regenerated reference's joint-position checksum against the recorded one
 TOP_UP_LIMIT = 3  # at most this many references (or clips) tried per one wanted
@@ -61,7 +61,7 @@ def present(step: str, source: str, split: str, s: ExperimentSettings, out: Path
     carried without `data/`) is generated again and checked against the recorded `contents`; a
     record made before they were recorded gets them from the dataset that is there."""
     record = steps.record(step)
-    if record is None or record["status"] != "done":
+    if record is None or record["status"] != DONE:
         return record
     result = record["result"]
     folder = Path(result["dataset"])
