@@ -116,6 +116,7 @@ def complete(coarse: Problem, cones: ContactCones | None, policy_for_node: Polic
         fine = crocoddyl.IntegratedActionModelEuler(dynamics, FRAME_DT)
         fine_data = fine.createData()
         policy = policy_for_node(k, fine, fine_data)
+        active = _active(coarse, node.contacts)
         for i in range(int(round(node.dt / FRAME_DT))):
             u = np.clip(policy(i, x), -limit, limit)
             fine.calc(fine_data, x, u)
@@ -124,9 +125,9 @@ def complete(coarse: Problem, cones: ContactCones | None, policy_for_node: Polic
                 fine.calc(fine_data, x, u)
             frames.q[frame], frames.v[frame], frames.tau[frame] = x[:nq], x[nq:], u
             contact_wrenches(fine_data, coarse, node.contacts, frames.wrench[frame])
-            frames.active[frame] = _active(coarse, node.contacts)
+            frames.active[frame] = active
             x = fine_data.xnext.copy()
-            if not np.all(np.isfinite(x)):
+            if not np.isfinite(x).all():
                 raise SolverError(f"the 200 Hz frames diverged at t = {node.time:.3f} s")
             frame += 1
     terminal, terminal_data = shooting.terminalModel, shooting.terminalData
@@ -178,6 +179,8 @@ class ContactCones:
     def __init__(self, problem: Problem, robot_feet: dict[str, tuple[float, float]], mu: float):
         self.problem, self.robot_feet, self.mu = problem, robot_feet, mu
         self._rows: dict[tuple[str, int | None], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._stacks: dict[tuple[tuple[str, ...], int | None], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._tolerant: dict[tuple[tuple[str, ...], int | None], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def rows(self, name: str, phase: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The cone's rows (A, lb, ub) of contact `name` in phase `phase` (built once)."""
@@ -192,6 +195,14 @@ class ContactCones:
         return self._rows[key]
 
     def _stack(self, contacts, phase: int | None = None):
+        """The block-diagonal rows (A, lb, ub) of several contacts, built once per contact set and
+        phase (every frame of a node asks for the same)."""
+        key = (tuple(contacts), phase)
+        if key not in self._stacks:
+            self._stacks[key] = self._build_stack(contacts, phase)
+        return self._stacks[key]
+
+    def _build_stack(self, contacts, phase: int | None):
         blocks, lower, upper = [], [], []
         for name in contacts:
             A, lb, ub = self.rows(name, phase)
@@ -206,15 +217,19 @@ class ContactCones:
             r, c = r + b.shape[0], c + b.shape[1]
         return A, np.concatenate(lower), np.concatenate(upper)
 
-    @staticmethod
-    def _forces(data, contacts) -> np.ndarray:
+    def _forces(self, data, contacts) -> np.ndarray:
         forces = data.differential.multibody.contacts.contacts
-        return np.concatenate([forces[n].f.vector[: forces[n].Jc.shape[0]] for n in contacts])
+        # a 6D contact's wrench, a 3D one's force (the rows of its cone)
+        return np.concatenate([forces[n].f.vector[: 6 if self.problem.flat[n] else 3] for n in contacts])
 
     def holds(self, data, contacts, phase: int | None = None) -> bool:
-        A, lb, ub = self._stack(contacts, phase)
+        key = (tuple(contacts), phase)
+        if key not in self._tolerant:
+            A, lb, ub = self._stack(contacts, phase)
+            self._tolerant[key] = (A, lb - 1e-9, ub + 1e-9)
+        A, lower, upper = self._tolerant[key]
         r = A @ self._forces(data, contacts)
-        return bool(np.all(r <= ub + 1e-9) and np.all(r >= lb - 1e-9))
+        return bool((r <= upper).all() and (r >= lower).all())
 
     def project(self, model, data, x, u, contacts, limits, phase: int | None = None) -> np.ndarray:
         model.differential.calcDiff(data.differential, x, u)

@@ -25,6 +25,8 @@ diverged on some (docs/trajopt.md).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from opt2skill.data.record import FRAME_DT
@@ -64,12 +66,17 @@ def track(coarse: Problem, solution: Solution, cones: ContactCones | None, bandw
     return complete(coarse, cones, policy_for_node)
 
 
+@functools.cache
+def _lower_triangle(n: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.tril_indices(n, -1)
+
+
 def _least_squares_gain(dynamics_data) -> np.ndarray:
     """G with du = G (a_des - a) minimizing ||a + Fu du - a_des||_M (Fu = da/du, M the joint-space
     inertia, both at the data's state)."""
     fu = dynamics_data.Fu
     mass = np.array(dynamics_data.multibody.pinocchio.M)  # Pinocchio fills the upper triangle
-    lower = np.tril_indices_from(mass, -1)
+    lower = _lower_triangle(len(mass))
     mass[lower] = mass.T[lower]
     weighted = fu.T @ mass
     hessian = weighted @ fu
