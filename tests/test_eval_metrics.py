@@ -1,5 +1,6 @@
 """Every Table III/IV metric on hand-made trajectories whose answers are known in closed form."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -80,6 +81,14 @@ def test_perfect_tracking_is_zero_and_yaw_wraps():
     e = tracking_errors(ref, trk)
     assert e.E_joint == e.E_ee_foot == e.E_pos_x == e.E_force == 0.0
     assert e.E_yaw == pytest.approx(1000 * 0.02 / N)
+
+
+def test_a_kinematic_reference_has_no_force_or_torque_error():
+    """IK and human records carry zero torques and forces as placeholders: no error against them."""
+    ref = dataclasses.replace(straight_walk(), has_dynamics=False)
+    e = tracking_errors(ref, perturbed(ref))
+    assert math.isnan(e.E_force) and math.isnan(e.E_torque)
+    assert e.E_joint == pytest.approx(0.1) and e.E_ee_foot == pytest.approx(2.0)
 
 
 def test_stepping_in_place_has_no_path_percentage():

@@ -49,8 +49,8 @@ class TrackingErrors:
     E_pos_x: float  # NaN when the reference path is shorter than MIN_PATH_LENGTH
     E_pos_y: float
     E_yaw: float
-    E_force: float  # NaN when the records carry no contacts
-    E_torque: float
+    E_force: float  # NaN when the records carry no contacts, or the reference no dynamics
+    E_torque: float  # NaN when the reference has no dynamics (a kinematic record)
     frames: int  # frames compared
     fell: bool
 
@@ -86,10 +86,13 @@ def tracking_errors(
     pos_y = abs(final_err @ axis_y) / n
     yaw_err = abs(_wrap(yaw_of(tracked.qpos[-1, 3:7]) - heading)) / n
 
-    force_err = np.nan
-    if ref.contact_wrench.shape[1]:
-        force_err = np.linalg.norm(tracked.contact_wrench[..., :3] - ref.contact_wrench[..., :3], axis=-1).mean()
-    torque_err = np.abs(tracked.joint_torque - ref.joint_torque).mean()
+    # A kinematic reference (IK, human motion) has no torques or forces to compare with: its zeros
+    # are placeholders, not a plan.
+    force_err = torque_err = np.nan
+    if reference.has_dynamics:
+        if ref.contact_wrench.shape[1]:
+            force_err = np.linalg.norm(tracked.contact_wrench[..., :3] - ref.contact_wrench[..., :3], axis=-1).mean()
+        torque_err = np.abs(tracked.joint_torque - ref.joint_torque).mean()
 
     values = {
         "E_joint": joint_err, "E_vel_x": vel_x_err, "E_vel_yaw": vel_yaw_err, "E_ee_hand": hand_err,
