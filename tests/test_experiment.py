@@ -31,10 +31,11 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     assert r.returncode == 0, r.stderr[-3000:]
     # the policies trained side by side: one bar over their environment steps, read from their logs, to the end
     assert "training: 100%" in r.stderr, r.stderr[-3000:]
-    for path in ("table3.md", "table3.json", "fig3.png", "provenance.json", "experiment.json"):
+    for path in ("table3.md", "table3.json", "table3-table2.md", "table3-table2.json", "fig3.png", "provenance.json",
+                 "experiment.json"):
         assert (out / path).is_file(), path
     steps = {p.stem: json.loads(p.read_text()) for p in (out / "steps").glob("*.json")}
-    assert len(steps) == 22 and all(s["status"] == "done" for s in steps.values()), {k: s["status"] for k, s in steps.items()}
+    assert len(steps) == 27 and all(s["status"] == "done" for s in steps.values()), {k: s["status"] for k, s in steps.items()}
     table = json.loads((out / "table3.json").read_text())
     assert [row["key"] for row in table["data"]] == ["to", "human", "ik"]
     assert [row["name"] for row in table["history"]] == ["Opt2Skill-hist10", "Opt2Skill-hist0"]
@@ -52,7 +53,7 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     # steps; each pair evaluated (and a data row's policy swept) before the next pair trains
     assert r.stdout.count("training 2 policies, 2 at a time") == 2 and r.stdout.count(": ready (") == 4, r.stdout[-3000:]
     order = [line for line in r.stdout.splitlines() if "training 2 policies" in line or "evaluate " in line]
-    assert ["training" in line for line in order] == [True, False, False, True, False, False], order
+    assert ["training" in line for line in order] == [True, False, False, False, False] * 2, order
     shared = max(1, (os.cpu_count() or 1) // 2)  # the cores shared out: not every core in each process
     for key in runs:
         first = json.loads((out / "runs" / key / "run.json").read_text())["invocations"][0]
@@ -62,6 +63,13 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     ik_report = json.loads((out / "eval" / "ik" / "eval.json").read_text())
     assert to_report["trajectories"][0]["params"] == ik_report["trajectories"][0]["params"]
     assert "none used in training (held out)" in to_report["references"]["note"]
+    # each policy also rolled out under Table II's randomization and noise, into a table of its own
+    robust = json.loads((out / "eval" / "to-table2" / "eval.json").read_text())
+    assert robust["options"]["randomize"] and robust["options"]["noise"] and not to_report["options"]["randomize"]
+    assert robust["references"]["indices"] == to_report["references"]["indices"]
+    table2 = json.loads((out / "table3-table2.json").read_text())
+    assert "Table II" in table2["condition"] and "no randomization" in table["condition"]
+    assert set(table2["tests"]) == set(table["tests"]) and [row["key"] for row in table2["data"]] == ["to", "human", "ik"]
     for source in ("to", "ik", "human"):
         for terrain in ("stairs", "slope"):
             sweep = json.loads((out / "sweeps" / f"{source}-{terrain}" / "sweep.json").read_text())
@@ -74,7 +82,7 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     start = time.perf_counter()
     again = subprocess.run([CLI, "experiment", "table3", "--out", str(out), *TINY], capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr[-3000:]
-    assert again.stdout.count("skipped") == 22
+    assert again.stdout.count("skipped") == 27
     assert stamps == {p.name: p.stat().st_mtime_ns for p in (out / "steps").glob("*.json")}
     assert time.perf_counter() - start < 60
 

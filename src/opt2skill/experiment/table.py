@@ -29,6 +29,12 @@ class Row:
     missing: str = ""  # why there is no report
 
 
+# The conditions of the held-out rollouts: the paper's Table III (from Agility's simulator, no
+# randomization stated) and the one the policies trained under.
+NOMINAL = "no randomization or observation noise"
+TABLE_II = "Table II's randomization and observation noise at full strength, as in training"
+
+
 @dataclass
 class Table3:
     setting: str
@@ -36,6 +42,8 @@ class Table3:
     history_rows: list[Row]
     p_values: dict[str, dict[str, Any]] = field(default_factory=dict)  # "TO vs IK" -> {test, n, p: {metric: p}}
     notes: list[str] = field(default_factory=list)
+    condition: str = NOMINAL  # of the rollouts
+    stem: str = "table3"  # the files' name
 
     def to_dict(self) -> dict[str, Any]:
         def row(r: Row) -> dict[str, Any]:
@@ -48,14 +56,15 @@ class Table3:
                            policy=r.report.policy.get("description"))
             return out
 
-        return {"format": "opt2skill-table3", "format_version": 1, "setting": self.setting,
+        return {"format": "opt2skill-table3", "format_version": 1, "setting": self.setting, "condition": self.condition,
                 "data": [row(r) for r in self.data_rows], "history": [row(r) for r in self.history_rows],
                 "tests": self.p_values, "paper_source": paper.SOURCE, "paper_tests": paper.PAPER_WILCOXON,
                 "notes": self.notes}
 
     def markdown(self) -> str:
         head = ["category", "method", *(header(m) for m in TABLE_III), "success"]
-        lines = [f"# Table III ({self.setting} setting): tracking on held-out references (mean ± SE; lower is better)", ""]
+        lines = [f"# Table III ({self.setting} setting): tracking on held-out references (mean ± SE; lower is better)", "",
+                 f"Rollouts with {self.condition}.", ""]
         if self.setting != "full":
             lines += [f"**A {self.setting}-setting smoke result: a few references and minutes of training. It shows "
                       "that every step runs; it is not the paper's comparison.**", ""]
@@ -78,7 +87,7 @@ class Table3:
         return "\n".join(lines) + "\n"
 
     def write(self, out: Path) -> tuple[Path, Path]:
-        return write_report_files(out, "table3", self.to_dict(), self.markdown())
+        return write_report_files(out, self.stem, self.to_dict(), self.markdown())
 
 
 def _cells(r: Row) -> list[str]:
@@ -94,14 +103,15 @@ def _p(p: float) -> str:
 
 
 def build_table(setting: str, reports: dict[str, EvalReport | None], missing: dict[str, str],
-                histories: tuple[int, ...], history: int) -> Table3:
-    """`reports`: "to", "ik", "human" and "hist<N>" -> the policy's report (None when unavailable)."""
+                histories: tuple[int, ...], history: int, condition: str = NOMINAL, stem: str = "table3") -> Table3:
+    """`reports`: "to", "ik", "human" and "hist<N>" -> the policy's report (None when unavailable),
+    all rolled out under `condition`."""
     data = [Row(s, SOURCE_LABELS[s], reports.get(s), paper.DATA_ROWS.get(s), missing.get(s, "")) for s in ("to", "human", "ik")]
     hist = []
     for h in sorted(histories, reverse=True):
         key = "to" if h == history else f"hist{h}"  # the data row's policy is the ablation's row at its history
         hist.append(Row(key, f"Opt2Skill-hist{h}", reports.get(key), paper.HISTORY_ROWS.get(h), missing.get(key, "")))
-    table = Table3(setting, data, hist)
+    table = Table3(setting, data, hist, condition=condition, stem=stem)
     to = reports.get("to")
     for other in ("ik", "human"):
         rep = reports.get(other)

@@ -5,8 +5,11 @@
 2. one policy per source with the same pipeline and budget (PPO from scratch, the same steps,
    worlds, seed and history; kinematic sources train with the `pos` inputs, all they have), and TO
    policies at the other history lengths;
-3. each evaluated on its source's held-out references (`eval.evaluate`);
-4. Table III with the paper's rows and the tests of TO against each baseline (`table`);
+3. each evaluated on its source's held-out references (`eval.evaluate`), twice: as the paper's
+   Table III (no randomization or noise) and under Table II's randomization and observation noise,
+   the conditions the policies trained under;
+4. Table III with the paper's rows and the tests of TO against each baseline (`table`), one per
+   condition;
 5. stair and slope sweeps of each source's policy, one success-rate figure (`figure`);
 6. where everything is, provenance and the time of every step.
 
@@ -35,6 +38,9 @@ from opt2skill.experiment.steps import DONE, Steps, Unavailable
 
 TERRAINS = ("stairs", "slope")
 COMMAND = "opt2skill experiment table3"
+# The evaluation under Table II's randomization and observation noise: its steps, folders and table
+# carry this suffix (`eval-to-table2`, `eval/to-table2/`, `table3-table2.md`).
+TABLE_II = "-table2"
 
 
 def policies(s: ExperimentSettings) -> dict[str, tuple[str, int]]:
@@ -61,14 +67,19 @@ def run_table3(s: ExperimentSettings, out: Path, progress: bool = True) -> dict[
             for key, (src, _) in batch.items():
                 steps.run(f"eval-{key}", f"evaluate {key} on held-out {SOURCE_LABELS[src]} references",
                           lambda key=key, src=src: _evaluate(s, out, key, src, steps, progress))
+                steps.run(f"eval-{key}{TABLE_II}", f"evaluate {key} on held-out {SOURCE_LABELS[src]} references "
+                          "under Table II's randomization and noise",
+                          lambda key=key, src=src: _evaluate(s, out, key, src, steps, progress, table2=True))
                 for terrain in TERRAINS if key in SOURCES else ():
                     steps.run(f"sweep-{src}-{terrain}", f"{terrain} sweep of {SOURCE_LABELS[src]}",
                               lambda src=src, terrain=terrain: _sweep(s, out, src, terrain, steps, progress))
         steps.run("table3", "Table III", lambda: _table(s, out, steps))
+        steps.run(f"table3{TABLE_II}", "Table III under Table II's randomization and noise",
+                  lambda: _table(s, out, steps, table2=True))
         steps.run("fig3", "Fig. 3 (success rate on terrain)", lambda: _figure(s, out, steps))
         return _outputs(s, out, rows, steps)
 
-    total = 2 * len(SOURCES) + 2 * len(rows) + 1 + len(SOURCES) * len(TERRAINS) + 1
+    total = 2 * len(SOURCES) + 3 * len(rows) + 2 + len(SOURCES) * len(TERRAINS) + 1
     return run_experiment(s, out, total, body)
 
 
@@ -86,7 +97,8 @@ def _data_present(s: ExperimentSettings, out: Path, steps: Steps, batch: dict[st
     splits of their source (the training set tells which references a policy has seen)."""
     records = {}
     for source in dict.fromkeys(src for src, _ in batch.values()):
-        readers = [f"{stage}-{key}" for key, (src, _) in batch.items() if src == source for stage in ("train", "eval")]
+        readers = [name for key, (src, _) in batch.items() if src == source
+                   for name in (f"train-{key}", f"eval-{key}", f"eval-{key}{TABLE_II}")]
         readers += [f"sweep-{source}-{terrain}" for terrain in TERRAINS if source in batch]
         waiting = any(steps.record(step) is None for step in readers)
         for split in ("train", "test"):
@@ -120,24 +132,26 @@ def _train(s: ExperimentSettings, out: Path, key: str, source: str, history: int
     return train_policy(s, out, key, record["result"], _ablation(s, source), history, COMMAND, progress)
 
 
-def _evaluate(s: ExperimentSettings, out: Path, key: str, source: str, steps: Steps, progress: bool) -> dict:
+def _evaluate(s: ExperimentSettings, out: Path, key: str, source: str, steps: Steps, progress: bool,
+              table2: bool = False) -> dict:
     from opt2skill.eval.evaluate import EvalRequest, evaluate
 
     run = need(steps, f"train-{key}", "trained policy")["run"]
     test = need(steps, f"data-{source}-test", "held-out references")["dataset"]
-    report, _ = evaluate(EvalRequest(run=Path(run), dataset=Path(test), n=s.n_test), progress=progress)
-    json_path, md_path = report.write(eval_dir(out, key))
+    request = EvalRequest(run=Path(run), dataset=Path(test), n=s.n_test, randomize=table2, noise=table2, seed=s.seed)
+    report, _ = evaluate(request, progress=progress)
+    json_path, md_path = report.write(eval_dir(out, key + (TABLE_II if table2 else "")))
     frames = sum(r.frames for r in report.results)
     return {"report": str(json_path), "table": str(md_path), "references": len(report.results),
             "success_rate": report.success_rate, "eval_s": report.elapsed, "frames": frames}
 
 
-def _reports(s: ExperimentSettings, steps: Steps) -> tuple[dict, dict]:
+def _reports(s: ExperimentSettings, steps: Steps, suffix: str = "") -> tuple[dict, dict]:
     from opt2skill.eval.report import read_report
 
     reports, missing = {}, {}
     for key in policies(s):
-        record = steps.record(f"eval-{key}")
+        record = steps.record(f"eval-{key}{suffix}")
         if record is not None and record["status"] == DONE:
             reports[key] = read_report(Path(record["result"]["report"]))
         else:
@@ -145,11 +159,13 @@ def _reports(s: ExperimentSettings, steps: Steps) -> tuple[dict, dict]:
     return reports, missing
 
 
-def _table(s: ExperimentSettings, out: Path, steps: Steps) -> dict:
-    from opt2skill.experiment.table import build_table
+def _table(s: ExperimentSettings, out: Path, steps: Steps, table2: bool = False) -> dict:
+    from opt2skill.experiment.table import NOMINAL, TABLE_II as UNDER_TABLE_II, build_table
 
-    reports, missing = _reports(s, steps)
-    table = build_table(s.setting, reports, missing, s.histories, s.history)
+    suffix = TABLE_II if table2 else ""
+    reports, missing = _reports(s, steps, suffix)
+    table = build_table(s.setting, reports, missing, s.histories, s.history,
+                        condition=UNDER_TABLE_II if table2 else NOMINAL, stem=f"table3{suffix}")
     table.notes += _data_notes(s, steps)
     return publish_table(table, out)
 
@@ -221,6 +237,7 @@ def _figure(s: ExperimentSettings, out: Path, steps: Steps) -> dict:
 def _outputs(s: ExperimentSettings, out: Path, rows, steps: Steps) -> dict[str, Path]:
     outputs: dict[str, Path] = {}
     add_output(outputs, steps, "table3", "Table III", "table")
+    add_output(outputs, steps, f"table3{TABLE_II}", "Table III under Table II", "table")
     add_output(outputs, steps, "fig3", "Fig. 3", "figure")
     for src in SOURCES:
         for split in ("train", "test"):
@@ -228,6 +245,7 @@ def _outputs(s: ExperimentSettings, out: Path, rows, steps: Steps) -> dict[str, 
     for key in rows:
         add_output(outputs, steps, f"train-{key}", f"{key} run", "run")
         add_output(outputs, steps, f"eval-{key}", f"{key} evaluation", "table")
+        add_output(outputs, steps, f"eval-{key}{TABLE_II}", f"{key} evaluation under Table II", "table")
     for src in SOURCES:
         for terrain in TERRAINS:
             add_output(outputs, steps, f"sweep-{src}-{terrain}", f"{src} {terrain} sweep", "table")
