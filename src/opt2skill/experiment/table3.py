@@ -40,7 +40,7 @@ TERRAINS = ("stairs", "slope")
 COMMAND = "opt2skill experiment table3"
 # The evaluation under Table II's randomization and observation noise: its steps, folders and table
 # carry this suffix (`eval-to-table2`, `eval/to-table2/`, `table3-table2.md`).
-TABLE_II = "-table2"
+TABLE_II_SUFFIX = "-table2"
 
 
 def policies(s: ExperimentSettings) -> dict[str, tuple[str, int]]:
@@ -67,14 +67,14 @@ def run_table3(s: ExperimentSettings, out: Path, progress: bool = True) -> dict[
             for key, (src, _) in batch.items():
                 steps.run(f"eval-{key}", f"evaluate {key} on held-out {SOURCE_LABELS[src]} references",
                           lambda key=key, src=src: _evaluate(s, out, key, src, steps, progress))
-                steps.run(f"eval-{key}{TABLE_II}", f"evaluate {key} on held-out {SOURCE_LABELS[src]} references "
+                steps.run(f"eval-{key}{TABLE_II_SUFFIX}", f"evaluate {key} on held-out {SOURCE_LABELS[src]} references "
                           "under Table II's randomization and noise",
                           lambda key=key, src=src: _evaluate(s, out, key, src, steps, progress, table2=True))
                 for terrain in TERRAINS if key in SOURCES else ():
                     steps.run(f"sweep-{src}-{terrain}", f"{terrain} sweep of {SOURCE_LABELS[src]}",
                               lambda src=src, terrain=terrain: _sweep(s, out, src, terrain, steps, progress))
         steps.run("table3", "Table III", lambda: _table(s, out, steps))
-        steps.run(f"table3{TABLE_II}", "Table III under Table II's randomization and noise",
+        steps.run(f"table3{TABLE_II_SUFFIX}", "Table III under Table II's randomization and noise",
                   lambda: _table(s, out, steps, table2=True))
         steps.run("fig3", "Fig. 3 (success rate on terrain)", lambda: _figure(s, out, steps))
         return _outputs(s, out, rows, steps)
@@ -98,7 +98,7 @@ def _data_present(s: ExperimentSettings, out: Path, steps: Steps, batch: dict[st
     records = {}
     for source in dict.fromkeys(src for src, _ in batch.values()):
         readers = [name for key, (src, _) in batch.items() if src == source
-                   for name in (f"train-{key}", f"eval-{key}", f"eval-{key}{TABLE_II}")]
+                   for name in (f"train-{key}", f"eval-{key}", f"eval-{key}{TABLE_II_SUFFIX}")]
         readers += [f"sweep-{source}-{terrain}" for terrain in TERRAINS if source in batch]
         waiting = any(steps.record(step) is None for step in readers)
         for split in ("train", "test"):
@@ -140,7 +140,7 @@ def _evaluate(s: ExperimentSettings, out: Path, key: str, source: str, steps: St
     test = need(steps, f"data-{source}-test", "held-out references")["dataset"]
     request = EvalRequest(run=Path(run), dataset=Path(test), n=s.n_test, randomize=table2, noise=table2, seed=s.seed)
     report, _ = evaluate(request, progress=progress)
-    json_path, md_path = report.write(eval_dir(out, key + (TABLE_II if table2 else "")))
+    json_path, md_path = report.write(eval_dir(out, key + (TABLE_II_SUFFIX if table2 else "")))
     frames = sum(r.frames for r in report.results)
     return {"report": str(json_path), "table": str(md_path), "references": len(report.results),
             "success_rate": report.success_rate, "eval_s": report.elapsed, "frames": frames}
@@ -162,7 +162,7 @@ def _reports(s: ExperimentSettings, steps: Steps, suffix: str = "") -> tuple[dic
 def _table(s: ExperimentSettings, out: Path, steps: Steps, table2: bool = False) -> dict:
     from opt2skill.experiment.table import NOMINAL, TABLE_II as UNDER_TABLE_II, build_table
 
-    suffix = TABLE_II if table2 else ""
+    suffix = TABLE_II_SUFFIX if table2 else ""
     reports, missing = _reports(s, steps, suffix)
     table = build_table(s.setting, reports, missing, s.histories, s.history,
                         condition=UNDER_TABLE_II if table2 else NOMINAL, stem=f"table3{suffix}")
@@ -237,7 +237,7 @@ def _figure(s: ExperimentSettings, out: Path, steps: Steps) -> dict:
 def _outputs(s: ExperimentSettings, out: Path, rows, steps: Steps) -> dict[str, Path]:
     outputs: dict[str, Path] = {}
     add_output(outputs, steps, "table3", "Table III", "table")
-    add_output(outputs, steps, f"table3{TABLE_II}", "Table III under Table II", "table")
+    add_output(outputs, steps, f"table3{TABLE_II_SUFFIX}", "Table III under Table II", "table")
     add_output(outputs, steps, "fig3", "Fig. 3", "figure")
     for src in SOURCES:
         for split in ("train", "test"):
@@ -245,7 +245,7 @@ def _outputs(s: ExperimentSettings, out: Path, rows, steps: Steps) -> dict[str, 
     for key in rows:
         add_output(outputs, steps, f"train-{key}", f"{key} run", "run")
         add_output(outputs, steps, f"eval-{key}", f"{key} evaluation", "table")
-        add_output(outputs, steps, f"eval-{key}{TABLE_II}", f"{key} evaluation under Table II", "table")
+        add_output(outputs, steps, f"eval-{key}{TABLE_II_SUFFIX}", f"{key} evaluation under Table II", "table")
     for src in SOURCES:
         for terrain in TERRAINS:
             add_output(outputs, steps, f"sweep-{src}-{terrain}", f"{src} {terrain} sweep", "table")
