@@ -67,6 +67,7 @@ def test_every_metric_has_its_known_value(heading):
     assert e.E_ee_hand == pytest.approx(5.0)  # cm
     assert e.E_ee_foot == pytest.approx(2.0)
     assert e.E_pos_x == pytest.approx(100 * 0.1 / path)  # 1 %
+    assert e.pace == pytest.approx(1 + 0.1 / path)  # ahead of the reference
     assert e.E_pos_y == pytest.approx(1000 * 0.2 / N)  # mm per step
     assert e.E_yaw == pytest.approx(1000 * 0.05 / N)  # mrad per step
     assert e.E_force == pytest.approx(5.0)
@@ -91,10 +92,17 @@ def test_a_kinematic_reference_has_no_force_or_torque_error():
     assert e.E_joint == pytest.approx(0.1) and e.E_ee_foot == pytest.approx(2.0)
 
 
+def test_pace_tells_an_overshoot_from_a_lag_that_e_pos_x_cannot():
+    ref = straight_walk()
+    ahead, behind = (tracking_errors(ref, perturbed(ref, along=d)) for d in (0.5, -0.5))
+    assert ahead.E_pos_x == pytest.approx(behind.E_pos_x) == pytest.approx(5.0)
+    assert ahead.pace == pytest.approx(1.05) and behind.pace == pytest.approx(0.95)
+
+
 def test_stepping_in_place_has_no_path_percentage():
     ref = straight_walk(speed=0.0)
     e = tracking_errors(ref, perturbed(ref))
-    assert math.isnan(e.E_pos_x)
+    assert math.isnan(e.E_pos_x) and math.isnan(e.pace)
     assert e.E_pos_y == pytest.approx(1000 * 0.2 / N)
 
 

@@ -4,6 +4,8 @@ the report files, and the terrain sweep's reference rotation and trial judge."""
 from __future__ import annotations
 
 import dataclasses
+import json
+import math
 
 import numpy as np
 import pytest
@@ -104,6 +106,8 @@ def test_report_files_round_trip_with_the_papers_row(recorded, tmp_path):
     reference, _ = recorded
     tracked = dataclasses.replace(reference, qpos=reference.qpos + np.r_[np.zeros(7), 0.01 * np.ones(20)])
     errors = [tracking_errors(reference, tracked), tracking_errors(reference, reference, fell=True)]
+    assert all(math.isnan(e.pace) for e in errors)  # a squat has no path
+    errors = [dataclasses.replace(e, pace=pace) for e, pace in zip(errors, (1.4, 0.9))]
     results = [TrajectoryResult(i, {"depth": 0.1}, False, cause, reference.num_frames, reference.num_frames, e)
                for i, (e, cause) in enumerate(zip(errors, ("time_out", "fall")))]
     report = EvalReport("eval", {"name": "mine", "key": {"checkpoint": "x"}}, {"note": "2 references", "dataset": "d",
@@ -115,6 +119,13 @@ def test_report_files_round_trip_with_the_papers_row(recorded, tmp_path):
     text = md_path.read_text()
     assert "| mine | 0.005 ± 0.005 |" in text and "| Opt2Skill (paper, Table III) | 0.03 ± 0.01 | 4.86 ± 4.18 |" in text
     assert "50% (1/2)" in text and all(m.split("_")[0] in text for m in METRICS)
+    assert "median 1.15, 0.90 to 1.40 over 2 references" in text and [r.errors.pace for r in back.results] == [1.4, 0.9]
+    # A report written before the signed pace existed still reads, its paces unknown.
+    old = json.loads(json_path.read_text())
+    for t in old["trajectories"]:
+        del t["pace"]
+    (tmp_path / "old.json").write_text(json.dumps(old))
+    assert all(math.isnan(r.errors.pace) for r in read_report(tmp_path / "old.json").results)
     (tmp_path / "bad.json").write_text('{"format": "something else"}')
     with pytest.raises(DataError, match="not an opt2skill evaluation report"):
         read_report(tmp_path / "bad.json")

@@ -9,6 +9,10 @@ compared on the frames it has. Definitions are in docs/eval.md; in short:
 - drift errors compare the final frame, in the reference's final heading frame: E_pos-x is the
   along-heading position error over the reference path length (%), E_pos-y and E_yaw are the
   lateral position and yaw errors divided by the number of frames ("per step", 200 Hz).
+
+Beside the paper's metrics, `pace` is E_pos-x with its sign kept: the distance the robot covered
+along the reference's final heading over the reference path length (1 on pace, above 1 ahead of
+the reference, below 1 behind it), which tells overshooting from lagging.
 """
 
 from __future__ import annotations
@@ -53,6 +57,8 @@ class TrackingErrors:
     E_torque: float  # NaN when the reference has no dynamics (a kinematic record)
     frames: int  # frames compared
     fell: bool
+    # 1 + the signed along-heading error over the path (E_pos-x = 100 |pace - 1|); NaN like E_pos-x
+    pace: float = float("nan")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -82,7 +88,8 @@ def tracking_errors(
     axis_y = np.array([-np.sin(heading), np.cos(heading)])
     final_err = tracked.qpos[-1, :2] - ref.qpos[-1, :2]
     path = np.linalg.norm(np.diff(ref.qpos[:, :2], axis=0), axis=1).sum()
-    pos_x = abs(final_err @ axis_x) / path if path >= MIN_PATH_LENGTH else np.nan
+    ahead = final_err @ axis_x / path if path >= MIN_PATH_LENGTH else np.nan
+    pos_x = abs(ahead)
     pos_y = abs(final_err @ axis_y) / n
     yaw_err = abs(_wrap(yaw_of(tracked.qpos[-1, 3:7]) - heading)) / n
 
@@ -100,7 +107,7 @@ def tracking_errors(
         "E_force": force_err, "E_torque": torque_err,
     }
     scaled = {name: float(value) * METRICS[name][1] for name, value in values.items()}
-    return TrackingErrors(**scaled, frames=n, fell=bool(fell))
+    return TrackingErrors(**scaled, frames=n, fell=bool(fell), pace=float(1.0 + ahead))
 
 
 def _ee_error(ref: Trajectory, tracked: Trajectory, names: tuple[str, ...]) -> float:

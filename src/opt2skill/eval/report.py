@@ -83,7 +83,9 @@ class TrajectoryResult:
         if missing:
             raise DataError(f"an evaluation report's trajectory lacks {missing}")
         values = {k: (float("nan") if d[k] is None else float(d[k])) for k in METRICS}
-        errors = TrackingErrors(**values, frames=int(d["frames"]), fell=bool(d["fell"]))
+        pace = d.get("pace")  # absent from reports written before it existed
+        errors = TrackingErrors(**values, frames=int(d["frames"]), fell=bool(d["fell"]),
+                                pace=float("nan") if pace is None else float(pace))
         try:
             task = {k: (float(v["value"]), str(v["unit"])) for k, v in d.get("task_metrics", {}).items()}
         except (TypeError, KeyError, ValueError, AttributeError):
@@ -123,6 +125,15 @@ class EvalReport:
     def success_rate(self) -> float:
         return success_rate([r.errors for r in self.results])
 
+    def pace_summary(self) -> dict[str, float] | None:
+        """Median, min, max and n of the references' signed paces (`metrics.TrackingErrors.pace`);
+        None when no reference has one (stepping in place, or a report older than the pace)."""
+        paces = np.array([r.errors.pace for r in self.results])
+        paces = paces[np.isfinite(paces)]
+        if not len(paces):
+            return None
+        return {"median": float(np.median(paces)), "min": float(paces.min()), "max": float(paces.max()), "n": len(paces)}
+
     @property
     def mean_episode_length(self) -> float:
         """Mean seconds tracked before the episode ended (a reference's full length when it succeeded)."""
@@ -146,7 +157,8 @@ class EvalReport:
             "policy": self.policy, "references": self.references, "options": self.options,
             "summary": {name: {"mean": s.mean, "se": s.se, "n": s.n, "unit": METRICS[name][0]} for name, s in summary.items()},
             "success_rate": self.success_rate, "mean_episode_length_s": self.mean_episode_length,
-            "mean_episode_fraction": self.mean_episode_fraction, "trajectories": [r.to_dict() for r in self.results],
+            "mean_episode_fraction": self.mean_episode_fraction, "pace": self.pace_summary(),
+            "trajectories": [r.to_dict() for r in self.results],
             "task_summary": {k: {"mean": m, "se": se, "n": n, "unit": u} for k, (m, se, n, u) in self.task_summary().items()},
             "paper": {row: {k: {"mean": m, "se": s} for k, (m, s) in values.items()} for row, values in PAPER_ROWS.items()},
             "elapsed_s": self.elapsed, "provenance": self.provenance,
@@ -187,7 +199,7 @@ class EvalReport:
             e = r.errors.as_dict()
             seen = {True: "yes", False: "no", None: "?"}[r.seen]
             rows.append([str(r.index), seen, r.cause, f"{(r.frames - 1) * FRAME_DT:.2f}",
-                         *(_num(e[m]) for m in (*TABLE_III, *TABLE_IV))])
+                         *(_num(e[m]) for m in (*TABLE_III, *TABLE_IV)), _num(r.errors.pace)])
         return rows
 
     def markdown(self) -> str:
@@ -200,6 +212,11 @@ class EvalReport:
         lines += _markdown_table(["policy", *(header(m) for m in TABLE_III)], self.table_iii_rows())
         lines += ["", "The paper's row is a reference line (Agility's simulator, their Digit model), not a result of "
                   "this code. E_pos-y and E_yaw are per 200 Hz step here (docs/eval.md).", ""]
+        pace = self.pace_summary()
+        if pace is not None:
+            lines += [f"Pace (distance covered along the reference's heading over its path length; E_pos-x with its "
+                      f"sign, 1 on pace): median {pace['median']:.2f}, {pace['min']:.2f} to {pace['max']:.2f} over "
+                      f"{pace['n']} references.", ""]
         lines += ["## Contact force, torque, success (Table IV quantities)", ""]
         lines += _markdown_table(["policy", *(header(m) for m in TABLE_IV), "success (falls counted)", "mean episode length"],
                                  self.extra_rows())
@@ -209,7 +226,7 @@ class EvalReport:
             lines += _markdown_table(["policy", *(f"{k} ({u})" if u else k for k, (_, _, _, u) in task.items())],
                                      [[self.title(), *(mean_se(Summary(m, se, n)) for m, se, n, _ in task.values())]])
         lines += ["", "## Per reference", ""]
-        lines += _markdown_table(["index", "trained on", "end", "tracked (s)", *(label(m) for m in (*TABLE_III, *TABLE_IV))],
+        lines += _markdown_table(["index", "trained on", "end", "tracked (s)", *(label(m) for m in (*TABLE_III, *TABLE_IV)), "pace"],
                                  self.trajectory_rows())
         return "\n".join(lines) + "\n"
 

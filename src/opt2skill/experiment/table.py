@@ -52,7 +52,8 @@ class Table3:
             if r.report is not None:
                 s = r.report.summary()
                 out.update(summary={m: {"mean": s[m].mean, "se": s[m].se, "n": s[m].n} for m in TABLE_III},
-                           success_rate=r.report.success_rate, references=r.report.references.get("note"),
+                           success_rate=r.report.success_rate, pace=r.report.pace_summary(),
+                           references=r.report.references.get("note"),
                            policy=r.report.policy.get("description"))
             return out
 
@@ -62,7 +63,7 @@ class Table3:
                 "notes": self.notes}
 
     def markdown(self) -> str:
-        head = ["category", "method", *(header(m) for m in TABLE_III), "success"]
+        head = ["category", "method", *(header(m) for m in TABLE_III), "success", "pace (median)"]
         lines = [f"# Table III ({self.setting} setting): tracking on held-out references (mean ± SE; lower is better)", "",
                  f"Rollouts with {self.condition}.", ""]
         if self.setting != "full":
@@ -74,8 +75,10 @@ class Table3:
                 lines.append("| " + " | ".join([category, r.name, *_cells(r)]) + " |")
                 if r.paper is not None:
                     lines.append("| " + " | ".join(["", f"*paper: {r.name}*", *(f"*{mean_se(r.paper[m])}*" for m in TABLE_III),
-                                                    ""]) + " |")
-        lines += ["", f"Paper rows (italics): {paper.SOURCE}; Agility's simulator, not this code's results.", ""]
+                                                    "", ""]) + " |")
+        lines += ["", f"Paper rows (italics): {paper.SOURCE}; Agility's simulator, not this code's results. Pace: the "
+                  "distance covered along the reference's heading over its path length, E_pos-x with its sign (1 on "
+                  "pace, above 1 ahead); not a paper metric.", ""]
         if self.p_values:
             p_head = ["comparison", "test", "pairs / sizes", *(label(m) for m in TABLE_III)]
             lines += ["p-values of TO against each baseline ('-' where undefined):", "",
@@ -92,10 +95,12 @@ class Table3:
 
 def _cells(r: Row) -> list[str]:
     if r.report is None:
-        return ["-"] * len(TABLE_III) + [f"not available: {r.missing}"]
+        return ["-"] * len(TABLE_III) + [f"not available: {r.missing}", "-"]
     s = r.report.summary()
     n = len(r.report.results)
-    return [*(mean_se(s[m]) for m in TABLE_III), f"{r.report.success_rate:.0%} of {n}"]
+    pace = r.report.pace_summary()
+    return [*(mean_se(s[m]) for m in TABLE_III), f"{r.report.success_rate:.0%} of {n}",
+            "-" if pace is None else f"{pace['median']:.2f}"]
 
 
 def _p(p: float) -> str:
