@@ -148,3 +148,42 @@ def test_bad_input_gets_one_clear_error_and_writes_nothing(squats, tmp_path):
         out = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=120)
         lines = out.stderr.strip().splitlines()
         assert out.returncode == 2 and len(lines) == 1 and message in lines[0], out.stderr
+
+
+def test_a_fine_tune_starts_from_another_runs_networks_optimizer_and_curriculum(squats, tmp_path):
+    """`--init-from`: PPO goes on from a run's newest checkpoint under another reward (`--base-position`),
+    recorded in the new run's identity; a checkpoint of other inputs or no checkpoint at all is refused
+    before anything is written."""
+    iteration = 4 * 48  # environment steps of one iteration: 4 worlds x 48 steps
+    source, tuned = tmp_path / "source", tmp_path / "tuned"
+    session.train(TrainRequest(dataset=squats, out=source, steps=2 * iteration, num_envs=4, threads=1), progress=False)
+    start = checkpoint.load(checkpoint.latest(source))
+    assert start["progress"] == pytest.approx(0.5)  # set before its second and last iteration
+    request = TrainRequest(dataset=squats, out=tuned, steps=2 * iteration, num_envs=4, threads=1, init_from=source,
+                           base_position="off")
+    session.train(request, progress=False)
+    identity = read_run(tuned)["identity"]
+    assert identity["init_from"]["iteration"] == 2 and identity["init_from"]["checkpoint"].endswith("model_00000002.pt")
+    assert identity["tracking"]["rewards"]["base_pos"]["weight"] == 0.0  # a squat's is 0.3: switched off
+    assert read_run(source)["identity"]["tracking"]["rewards"]["base_pos"]["weight"] == 0.3
+    # the curriculum goes on from the source's 0.5 toward the end over the fine-tune's own steps
+    assert [r["curriculum/progress"] for r in read_progress(tuned)] == pytest.approx([0.5, 0.75])
+    final = checkpoint.load(checkpoint.latest(tuned))
+    assert final["iteration"] == 2 and final["curriculum_start"] == pytest.approx(0.5)
+    # Adam went on counting from the source's updates (5 epochs x 4 minibatches per iteration)
+    assert int(final["alg"]["optimizer_state_dict"]["state"][0]["step"]) == 4 * 5 * 4
+    assert session.train(request, progress=False)["already_done"]  # a rerun resumes its own checkpoints
+    for change, error, message in (
+        (dict(history=5), DataError, "checkpoint of another policy: history 10 \\(expected 5\\)"),
+        (dict(init_from=tmp_path / "empty"), DataError, "has no checkpoint to start from"),
+        (dict(init_from=tmp_path / "missing.pt"), DataError, "does not exist"),
+        (dict(base_position="maybe"), ConfigError, "--base-position must be one of task, on, off"),
+    ):
+        (tmp_path / "empty").mkdir(exist_ok=True)
+        out = tmp_path / "refused"
+        with pytest.raises(error, match=message):
+            session.train(dataclasses.replace(request, out=out, **change), progress=False)
+        assert not out.exists()
+    out = subprocess.run([*CLI, "train", "--dataset", str(squats), "--out", str(tmp_path / "both"), "--init", "distill",
+                          "--init-from", str(source)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and "give one of them" in out.stderr and not (tmp_path / "both").exists()

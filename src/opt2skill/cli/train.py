@@ -86,6 +86,13 @@ def train(
                                          "rollouts stay float32): 2.7 times the learner's speed on a CPU with "
                                          "AVX512-BF16, slower where bf16 is emulated; a GPU computes bf16 natively "
                                          "(docs/training.md)."),
+    init_from: Path = typer.Option(None, "--init-from", help="A run (its newest checkpoint) or a checkpoint file of "
+                                   "the same robot, task and inputs: PPO starts from its actor, critic and optimizer, "
+                                   "the curriculum where that run left it (a fine-tune, e.g. with another "
+                                   "--base-position; --init scratch)."),
+    base_position: str = typer.Option("task", "--base-position", help="The base-position reward: task (as the "
+                                      "task has it: Table I leaves it out for walking), on or off (a deviation "
+                                      "from the paper, recorded in run.json)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Train a tracking policy on a dataset (PPO, rsl_rl); checkpoints, TensorBoard logs, resume."""
@@ -103,7 +110,8 @@ def train(
                            ablation=ablation, seed=seed, threads=threads, checkpoint_every=checkpoint_every,
                            command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out, kp_scale=kp_scale, sampling=sampling,
                            judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed), device=device,
-                           procs=procs, mixed_precision=mixed_precision)
+                           procs=procs, mixed_precision=mixed_precision, base_position=base_position,
+                           init_from=init_from)
     request.check()
     _warn_emulated_bf16(request)
     _terminate_as_interrupt()

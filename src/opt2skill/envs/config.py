@@ -296,15 +296,23 @@ def check_reference_inputs(ablation: str, has_dynamics: bool, source: str = "to"
         )
 
 
+# Whether the base-position reward applies: as the task registers it (Table I: not for walking), or
+# switched on or off against that (a deviation from the paper, recorded in the run's config).
+BASE_POSITION = ("task", "on", "off")
+
+
 def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10, kp_scale: float = 1.0,
-                    sampling: str = "uniform") -> TrackingConfig:
-    """The defaults for a dataset of `task`, with an ablation, a history length, a servo stiffness and
-    the episodes' start sampling applied."""
+                    sampling: str = "uniform", base_position: str = "task") -> TrackingConfig:
+    """The defaults for a dataset of `task`, with an ablation, a history length, a servo stiffness,
+    the episodes' start sampling and the base-position reward's choice (BASE_POSITION) applied."""
     if ablation not in ABLATIONS:
         raise ConfigError(f"ablation must be one of {', '.join(ABLATIONS)}, got '{ablation}'")
+    if base_position not in BASE_POSITION:
+        raise ConfigError(f"base position must be one of {', '.join(BASE_POSITION)}, got '{base_position}'")
     force, torque = ABLATIONS[ablation]
     rewards = RewardConfig()
-    if task and not _tracks_base_position(task):
+    tracked = _tracks_base_position(task) if task and base_position == "task" else base_position != "off"
+    if not tracked:
         rewards = dataclasses.replace(rewards, base_pos=dataclasses.replace(rewards.base_pos, weight=0.0))
     rewards = dataclasses.replace(
         rewards,

@@ -239,6 +239,9 @@ def train(request: TrainRequest, distill_steps: int = 2_000_000, progress: bool 
     figures. `announce` is told each stage's resume. With `procs` > 1 both stages run in that many
     processes, started here (or, under torchrun, this is one of them); rank 0's figures are returned."""
     request.check()
+    if request.init_from is not None:
+        raise ConfigError("--init-from starts PPO from a trained run's checkpoint; --init distill starts from the "
+                          "optimizer's expert: give one of them")
     group = processes.from_environment()
     size = group_size(request, group)
     if not (isinstance(distill_steps, int) and distill_steps >= 1):

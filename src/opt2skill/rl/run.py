@@ -59,6 +59,10 @@ class RunSpec:
     # Processes training together (rl.processes), each with num_envs worlds: the batch of an iteration
     # is theirs together. 1 is left out of run.json (as every run before it, which still resume).
     processes: int = 1
+    # The checkpoint PPO started from (`train --init-from`, a fine-tune of another run's policy): its
+    # path, iteration and sha256 (a resume compares the content, not the path); None: a fresh actor
+    # (left out of run.json then, as in every run before the option, which still resume).
+    init_from: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         data = json.loads(dumps(dataclasses.asdict(self)))
@@ -66,6 +70,8 @@ class RunSpec:
             del data["contacts"]
         if data["processes"] == 1:
             del data["processes"]
+        if data["init_from"] is None:
+            del data["init_from"]
         if not data["ppo"]["mixed_precision"]:  # float32, as every run before the option: left out, so they resume
             del data["ppo"]["mixed_precision"]
         episodes, default = data["tracking"]["episodes"], dataclasses.asdict(EpisodeConfig())
@@ -153,7 +159,8 @@ def check_run(run: Path, spec: RunSpec) -> dict[str, Any] | None:
     run = Path(run)
     if (run / RUN_FILE).is_file():
         data = read_run(run)
-        diff = [d for d in differences(data["identity"], spec.to_dict()) if not d.startswith("dataset: ")]
+        moved = ("dataset: ", "init_from.checkpoint: ")  # paths: a run and its inputs may move together
+        diff = [d for d in differences(data["identity"], spec.to_dict()) if not d.startswith(moved)]
         if diff:
             shown = "; ".join(diff[:6]) + (f"; and {len(diff) - 6} more" if len(diff) > 6 else "")
             raise ConfigError(f"{run} is a run with a different configuration ({shown}); choose another --out")

@@ -4,6 +4,7 @@ directory, the environment, the trainer; resumable and logged (docs/training.md)
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -15,7 +16,7 @@ import torch
 
 from opt2skill.data.reader import Dataset
 from opt2skill.envs import ABLATIONS, ReferenceBank, TrackingEnv, evaluation_config, tracking_config
-from opt2skill.envs.config import SAMPLINGS, TrackingConfig, check_reference_inputs
+from opt2skill.envs.config import BASE_POSITION, SAMPLINGS, TrackingConfig, check_reference_inputs
 from opt2skill.envs.evaluation import TrackedMotion, track
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.eval.references import check_contacts
@@ -56,6 +57,9 @@ class TrainRequest:
     sampling: str = "uniform"  # where episodes start: uniform or adaptive (envs.start_sampling)
     procs: int = 1  # processes training together (rl.processes), each with num_envs worlds of its own
     mixed_precision: bool = False  # bf16 autocast in PPO's update (rl.config.PPOConfig.mixed_precision)
+    base_position: str = "task"  # the base-position reward: as the task registers it, on or off (envs.config)
+    # A run (its newest checkpoint) or a checkpoint file to start PPO from: a fine-tune (`init_source`)
+    init_from: Path | None = None
 
     def check(self) -> None:
         if not (isinstance(self.steps, int) and self.steps >= 1):
@@ -80,6 +84,8 @@ class TrainRequest:
         check_device(self.device)  # e.g. --device cuda without a GPU: one error before anything is written
         if not (isinstance(self.procs, int) and 1 <= self.procs <= MAX_PROCS):
             raise ConfigError(f"--procs must be in [1, {MAX_PROCS}] processes, got {self.procs}")
+        if self.base_position not in BASE_POSITION:
+            raise ConfigError(f"--base-position must be one of {', '.join(BASE_POSITION)}, got '{self.base_position}'")
 
     def ppo(self) -> PPOConfig:
         """The PPO settings this request changes from the defaults (a distilled run's PPO stage starts from them)."""
@@ -138,6 +144,30 @@ def check_checkpoints(run: Path, robot, config) -> None:
             checkpoint.check_identity(path, checkpoint.load(path), expected)
 
 
+def init_source(path: Path, robot, config: TrackingConfig) -> dict[str, Any]:
+    """The checkpoint a fine-tune starts from: `path` itself, or the newest of the run `path`; checked
+    to hold a policy of this robot and task with the same inputs (reads only). Its path, iteration
+    and sha256 go into the new run's identity."""
+    path = Path(path)
+    if path.is_dir():
+        found = checkpoint.latest(path)
+        if found is None:
+            raise DataError(f"--init-from {path} has no checkpoint to start from (a run directory with "
+                            "checkpoints/model_*.pt, or a checkpoint file); a shipped policy "
+                            "holds its actor alone and cannot be fine-tuned")
+        path = found
+    elif not path.is_file():
+        raise DataError(f"--init-from {path} does not exist (give a run directory or one of its checkpoint files)")
+    data = checkpoint.load(path)
+    obs = config.observations
+    checkpoint.check_identity(path, data, checkpoint.identity(robot.name, robot.hash, config.task, config.ablation,
+                                                              obs.history, obs.stride))
+    if "identity" not in data or "alg" not in data:
+        raise DataError(f"--init-from {path} is not a PPO checkpoint of a run (no identity or networks)")
+    return {"checkpoint": str(path.resolve()), "iteration": int(data["iteration"]),
+            "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+
+
 def set_threads(threads: int | None) -> int:
     """Torch threads = physics threads = cores: collection and learning alternate, so they never
     compete (docs/training.md)."""
@@ -176,12 +206,14 @@ def prepare(request: TrainRequest, size: int, check_existing: bool = True) -> Pr
         first = dataset.meta(0)
         check_reference_inputs(request.ablation, first.has_dynamics, first.source)
     config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
-                             request.sampling)
+                             request.sampling, request.base_position)
     ppo = request.ppo()
+    source = init_source(request.init_from, robot, config) if request.init_from is not None else None
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
                    trajectories=len(dataset), robot=robot.name, robot_hash=robot.hash, tracking=config, ppo=ppo,
                    num_envs=request.num_envs, seed=request.seed,
-                   contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names), processes=size)
+                   contacts=RunSpec.contacts_of(robot, dataset.meta(0).contact_names), processes=size,
+                   init_from=source)
     invocation = {"command": request.command, "steps": request.steps, "threads": request.threads_per_process(size),
                   "provenance": provenance(robot.hash, dataset=spec.dataset, seed=request.seed)}
     if check_existing:
@@ -222,13 +254,14 @@ def _train_in_group(request: TrainRequest, progress: bool, announce: Callable[[s
         if not group.is_main:
             progress, announce = False, no_announce
         return _train_ppo(request, prepared.robot, bank, prepared.config, prepared.ppo, existed, progress, announce,
-                          judge, group)
+                          judge, group, prepared.spec.init_from)
 
 
 def _train_ppo(request: TrainRequest, robot, bank, config, ppo: PPOConfig, existed: bool, progress: bool,
                announce: Callable[[str], None], judge: HeldOutJudge | None = None,
-               group: Group = processes.ONE) -> dict[str, Any]:
-    """The PPO loop of `train` on an opened run (its lock held by rank 0)."""
+               group: Group = processes.ONE, source: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The PPO loop of `train` on an opened run (its lock held by rank 0); a new run starts from the
+    checkpoint `source` (`init_source`) when given."""
     from torch.utils.tensorboard import SummaryWriter
 
     threads = set_threads(request.threads_per_process(group.size))
@@ -242,7 +275,13 @@ def _train_ppo(request: TrainRequest, robot, bank, config, ppo: PPOConfig, exist
         else:
             if group.is_main:
                 trim_progress(request.out, 0)
-            trainer.warm_up_normalizers()
+            if source is not None:
+                path = Path(source["checkpoint"])
+                trainer.start_from(checkpoint.load(path), path)
+                announce(f"starting {request.out} from {path} (iteration {source['iteration']}), the curriculum "
+                         f"where that run left it ({trainer.curriculum_start:.0%})")
+            else:
+                trainer.warm_up_normalizers()
         if trainer.iteration >= trainer.iterations_for(request.steps):
             return {"iteration": trainer.iteration, "env_steps": trainer.env_steps, "already_done": True}
         writer = None

@@ -24,6 +24,7 @@ from rsl_rl.algorithms import PPO
 
 from opt2skill.data.atomic import dumps
 from opt2skill.envs import TrackingEnv
+from opt2skill.errors import DataError
 from opt2skill.rl import checkpoint
 from opt2skill.rl.best import judge_actor
 from opt2skill.rl.config import PPOConfig
@@ -72,6 +73,9 @@ class Trainer:
         # Optional `rl.pace.AdaptivePace`: the curriculum advances with the policy's failure rate
         # instead of with the environment steps.
         self.pace = None
+        # Where the curriculum starts: 0 for a fresh policy; a fine-tune (`start_from`) starts where its
+        # source run left it and moves from there to the end over its own steps.
+        self.curriculum_start = 0.0
         torch.manual_seed(seed)  # the networks' initialization: the same on every process of a group
         self.venv = TrackingVecEnv(env, ppo.reward_scale or None, learner_device(env.device, group.size))
         self.alg = build_algorithm(self.venv, ppo, group)
@@ -94,6 +98,7 @@ class Trainer:
             "env_steps": self.env_steps,
             "elapsed": self.elapsed,
             "progress": self.env.progress,
+            "curriculum_start": self.curriculum_start,
             "torch_rng": torch.get_rng_state(),
             # the actions' noise is drawn on the learner's device: a GPU's generator resumes too
             **({"cuda_rng": torch.cuda.get_rng_state(self.venv.device)} if self.venv.device.type == "cuda" else {}),
@@ -137,7 +142,26 @@ class Trainer:
             seed = self.group.seed(self.seed) + self.iteration
             torch.manual_seed(seed)
             self.env.rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+        self.curriculum_start = data.get("curriculum_start", 0.0)
         self.env.set_progress(data["progress"])
+        self.env.reset()
+        self.venv.refresh()
+
+    def start_from(self, data: dict[str, Any], path: Path | str = "checkpoint") -> None:
+        """Begin a fine-tune from another run's checkpoint: its actor (observation normalizer and action
+        noise included), critic, optimizer and learning rate, and its curriculum progress as the start
+        of this run's. The counters and random streams stay this run's own."""
+        checkpoint.check_identity(Path(path), data, self.identity())
+        dims = {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu}
+        if data.get("dims", dims) != dims:
+            raise DataError(f"{path} holds networks for {data['dims']} observations and actions; this run's task gives "
+                            f"{dims} (another scene or contacts): fine-tune a run of the same inputs")
+        self.alg.load(data["alg"], {"actor": True, "critic": True, "optimizer": True}, strict=True)
+        self.alg.learning_rate = data["learning_rate"]
+        for group in self.alg.optimizer.param_groups:
+            group["lr"] = data["learning_rate"]
+        self.curriculum_start = float(data["progress"])
+        self.env.set_progress(self.curriculum_start)
         self.env.reset()
         self.venv.refresh()
 
@@ -231,7 +255,8 @@ class Trainer:
         try:
             while self.iteration < last:
                 if self.pace is None:
-                    self.env.set_progress(self.env_steps / (total_iterations * self.batch))
+                    done = self.env_steps / (total_iterations * self.batch)
+                    self.env.set_progress(self.curriculum_start + (1.0 - self.curriculum_start) * done)
                 figures = self.train_iteration()
                 if self.pace is not None:  # the next iteration's world, from this one's failures
                     self.env.set_progress(self.pace.advance(self.env.progress, figures,
