@@ -263,3 +263,19 @@ def test_side_by_side_training_reads_its_progress_from_the_runs_logs(tmp_path):
         log.write('{"iteration": 2, "env_steps": 100}\n')
     assert steps.count() == 300 + 100
     assert _LoggedSteps(run).count() == 300 + 50  # another launch now would restart from the checkpoint again
+
+
+def test_fig3_counts_falls_apart_from_success(tmp_path):
+    """A policy that lags its reference fails every setting without falling: Fig. 3's second row
+    shows that (the share of trials without a fall), from the sweeps' own trials."""
+    from opt2skill.experiment.figure import plot_fig3, stayed_up
+
+    def trial(fell, progress):
+        return {"yaw": 0.0, "fell": fell, "fall_time": 1.0 if fell else None, "progress": progress, "distance": 5.0,
+                "success": not fell and progress >= 4.5}
+
+    lagging = {"settings": {"values": [0.0, 0.02]}, "success_rate": {"0 cm": 0.0, "2 cm": 0.0},
+               "trials": {"0 cm": [trial(False, 3.3)] * 4, "2 cm": [trial(False, 3.0)] * 3 + [trial(True, 1.0)]}}
+    assert stayed_up(lagging).tolist() == [100.0, 75.0]
+    path = plot_fig3({"stairs": {"to": None, "human": lagging}, "slope": {}}, tmp_path / "fig3.png", "test")
+    assert path.stat().st_size > 10_000
