@@ -141,6 +141,24 @@ def test_the_shipped_walking_policy_walks_a_held_out_reference_under_table_ii():
     assert result.errors.E_ee_foot < 6.0 and result.errors.E_ee_hand < 3.5, result.errors
 
 
+@pytest.mark.skipif("walk" not in pretrained.names(), reason="no walking policy shipped")
+def test_the_shipped_walking_policy_walks_on_through_the_trainings_pushes():
+    """`eval --pushes`: the training's pushes (every 2-6 s, up to 0.3 m/s) in an otherwise nominal world.
+    They land (the base velocity leaves the push-free rollout's by more than 0.1 m/s) and the shipped
+    walker tracks the stored walk to the end (measured with seeds 0, 1, 2: 5.1 to 5.3 cm feet;
+    under Table II and noise as well, 2 of the 3 seeds). Only a pushed report's options name them."""
+    reference = DATA / "walk" / "seed1_index7"
+    calm, (calm_rollout,) = evaluate(EvalRequest(run=pretrained.pretrained_run("walk"), dataset=reference, n=1,
+                                                 threads=1), progress=False)
+    report, (rollout,) = evaluate(EvalRequest(run=pretrained.pretrained_run("walk"), dataset=reference, n=1, threads=1,
+                                              pushes=True), progress=False)
+    (pushed,) = report.results
+    assert pushed.cause == "time_out" and pushed.errors.E_ee_foot < 6.0, (pushed.cause, pushed.errors)
+    assert calm.options == {"randomize": False, "noise": False, "seed": 0}  # the keys of earlier reports
+    assert report.options == {"randomize": False, "noise": False, "pushes": True, "seed": 0}
+    assert np.abs(rollout.tracked.qvel[:, :2] - calm_rollout.tracked.qvel[:, :2]).max() > 0.1
+
+
 @pytest.mark.skipif("box_pickup" not in pretrained.names(), reason="no box pickup policy shipped")
 def test_the_shipped_box_policy_carries_a_held_out_box_onto_its_target_board():
     """The shipped box pickup policy on a stored reference of another seed than its training set:

@@ -100,7 +100,10 @@ def eval_command(
     indices: str = INDICES,
     randomize: bool = RANDOMIZE,
     noise: bool = NOISE,
-    seed: int = typer.Option(0, help="Seed of the rollouts (randomization, noise)."),
+    pushes: bool = typer.Option(False, "--pushes", help="The training's pushes on (the paper's external "
+                                "disturbances, not in Table II): every 2 to 6 s a base velocity change of up to "
+                                "0.3 m/s in a random horizontal direction."),
+    seed: int = typer.Option(0, help="Seed of the rollouts (randomization, noise, pushes)."),
     checkpoint: Path = CHECKPOINT,
     plots: int = typer.Option(3, help="Reference-against-tracked pages (PNG) for the first K references."),
     out: Path = typer.Option(None, help="Output directory (default: RUN/eval/<dataset>-<split>...)."),
@@ -118,7 +121,7 @@ def eval_command(
     from opt2skill.eval.plots import plot_tracking
 
     request = EvalRequest(run=run, dataset=dataset, n=n, split=split, indices=_indices(indices), randomize=randomize,
-                          noise=noise, seed=seed, checkpoint=checkpoint, threads=threads)
+                          noise=noise, pushes=pushes, seed=seed, checkpoint=checkpoint, threads=threads)
     default = request.default_out(spec)
     out = check_output_dir(out or (elsewhere / "eval" / default.name if elsewhere else default))
     policy = load_run_policy(run, checkpoint)  # the checkpoint checked before anything is written

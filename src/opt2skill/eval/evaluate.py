@@ -43,17 +43,20 @@ class EvalRequest:
     indices: tuple[int, ...] = ()  # generation indices instead of a split
     randomize: bool = False  # Table II randomization on
     noise: bool = False  # Table II observation noise on
+    pushes: bool = False  # the training's pushes on (Section III-B's external disturbances; not Table II)
     seed: int = 0
     checkpoint: Path | None = None  # default: the run's newest
     threads: int | None = None
 
     def options(self) -> dict[str, Any]:
-        return {"randomize": self.randomize, "noise": self.noise, "seed": self.seed}
+        # "pushes" only when on: the reports written before it keep their keys (and their reuse)
+        return {"randomize": self.randomize, "noise": self.noise, **({"pushes": True} if self.pushes else {}),
+                "seed": self.seed}
 
     def default_out(self, spec: RunSpec) -> Path:
         name = Path(self.dataset or spec.dataset).name
         parts = [name, self.split if not self.indices else "given"]
-        parts += [p for p, on in (("randomized", self.randomize), ("noise", self.noise)) if on]
+        parts += [p for p, on in (("randomized", self.randomize), ("noise", self.noise), ("pushes", self.pushes)) if on]
         parts += [f"seed{self.seed}"] if self.seed else []
         return Path(self.run) / "eval" / "-".join(parts)
 
@@ -160,7 +163,7 @@ def evaluate(request: EvalRequest, progress: bool = True, reuse: Path | None = N
     threads = request.threads or os.cpu_count() or 1
     torch.set_num_threads(threads)
     references = [dataset[p] for p in refs.positions]
-    config = eval_config(run.spec.tracking, request.randomize, request.noise)
+    config = eval_config(run.spec.tracking, request.randomize, request.noise, request.pushes)
     with step_bar(references, progress, "evaluating") as bar:
         rollouts = rollout(run.robot, references, run.policy, config, seed=request.seed, threads=threads,
                            progress=bar.update)
@@ -170,11 +173,12 @@ def evaluate(request: EvalRequest, progress: bool = True, reuse: Path | None = N
     return report, rollouts
 
 
-def eval_config(tracking: TrackingConfig, randomize: bool = False, noise: bool = False) -> TrackingConfig:
+def eval_config(tracking: TrackingConfig, randomize: bool = False, noise: bool = False,
+                pushes: bool = False) -> TrackingConfig:
     """The training task for evaluation (`envs.evaluation_config`), with one change: drifting from the
     reference does not end an episode (`max_xy_error` off). Drift is what E_pos-x and E_pos-y
     measure over the whole reference; falls, height and orientation losses still end it."""
-    config = evaluation_config(tracking, randomize=randomize, noise=noise)
+    config = evaluation_config(tracking, randomize=randomize, noise=noise, pushes=pushes)
     return dataclasses.replace(config, terminations=dataclasses.replace(config.terminations, max_xy_error=0.0))
 
 
