@@ -104,11 +104,14 @@ class Trainer:
             **({"cuda_rng": torch.cuda.get_rng_state(self.venv.device)} if self.venv.device.type == "cuda" else {}),
             "env_rng": self.env.rng.bit_generator.state,
             "starts": self.env.starts.state(),
-            "dims": {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu},
+            "dims": self.dims(),
             "identity": self.identity(),
             **({"anchor": self.anchor.state()} if self.anchor is not None else {}),
             **({"pace": self.pace.state()} if self.pace is not None else {}),
         }
+
+    def dims(self) -> dict[str, int]:
+        return {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu}
 
     def identity(self) -> dict[str, Any]:
         env = self.env
@@ -123,10 +126,7 @@ class Trainer:
         """Continue from a checkpoint: models, optimizer, learning rate, counters, curriculum, RNGs.
         The worlds start new episodes (the episodes in flight at the kill are not in the checkpoint)."""
         checkpoint.check_identity(Path(path), data, self.identity())
-        self.alg.load(data["alg"], None, strict=True)
-        self.alg.learning_rate = data["learning_rate"]
-        for group in self.alg.optimizer.param_groups:
-            group["lr"] = data["learning_rate"]
+        self._load_networks(data)
         self.iteration, self.env_steps, self.elapsed = data["iteration"], data["env_steps"], data["elapsed"]
         torch.set_rng_state(data["torch_rng"])
         if self.venv.device.type == "cuda" and "cuda_rng" in data:
@@ -152,18 +152,21 @@ class Trainer:
         noise included), critic, optimizer and learning rate, and its curriculum progress as the start
         of this run's. The counters and random streams stay this run's own."""
         checkpoint.check_identity(Path(path), data, self.identity())
-        dims = {"actor": self.env.actor_dim, "critic": self.env.critic_dim, "actions": self.env.nu}
-        if data.get("dims", dims) != dims:
+        if data.get("dims", self.dims()) != self.dims():
             raise DataError(f"{path} holds networks for {data['dims']} observations and actions; this run's task gives "
-                            f"{dims} (another scene or contacts): fine-tune a run of the same inputs")
-        self.alg.load(data["alg"], {"actor": True, "critic": True, "optimizer": True}, strict=True)
-        self.alg.learning_rate = data["learning_rate"]
-        for group in self.alg.optimizer.param_groups:
-            group["lr"] = data["learning_rate"]
+                            f"{self.dims()} (another scene or contacts): fine-tune a run of the same inputs")
+        self._load_networks(data)
         self.curriculum_start = float(data["progress"])
         self.env.set_progress(self.curriculum_start)
         self.env.reset()
         self.venv.refresh()
+
+    def _load_networks(self, data: dict[str, Any]) -> None:
+        """Actor, critic, optimizer (rsl_rl's `PPO.load`) and the learning rate of a checkpoint."""
+        self.alg.load(data["alg"], {"actor": True, "critic": True, "optimizer": True}, strict=True)
+        self.alg.learning_rate = data["learning_rate"]
+        for group in self.alg.optimizer.param_groups:
+            group["lr"] = data["learning_rate"]
 
     def resume_latest(self) -> bool:
         path = checkpoint.latest(self.run)
