@@ -3,8 +3,10 @@ evaluation and sweeps), its resume, Table III's tests, and bad input."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import signal
 import subprocess
 import time
 
@@ -85,6 +87,49 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     assert again.stdout.count("skipped") == 27
     assert stamps == {p.name: p.stat().st_mtime_ns for p in (out / "steps").glob("*.json")}
     assert time.perf_counter() - start < 60
+
+
+@pytest.mark.slow
+def test_a_terminated_experiment_checkpoints_the_trainings_in_flight(tmp_path):
+    """SIGTERM to the experiment's process alone (`kill PID`) ends the policies training side by side
+    in their own processes at the end of their iteration in flight, each checkpointed at its last
+    logged iteration, and the command exits as interrupted (130). Without it the trainings went on
+    orphaned, or died with everything since their last periodic checkpoint."""
+    from opt2skill.rl.checkpoint import latest
+
+    out = tmp_path / "t3"
+    args = list(TINY)
+    args[args.index("--train-steps") + 1] = "10000000"  # far more than the test waits for
+    stdout, stderr = tmp_path / "stdout", tmp_path / "stderr"  # files: a full pipe would block the trainings
+    with open(stdout, "w") as o, open(stderr, "w") as e:
+        proc = subprocess.Popen([CLI, "experiment", "table3", "--out", str(out), *args], stdout=o, stderr=e,
+                                start_new_session=True)
+
+    def logged() -> dict[str, int]:  # run -> iterations in its progress log (complete lines)
+        found = {}
+        for log in (out / "runs").glob("*/progress.jsonl"):
+            found[log.parent.name] = sum(1 for line in log.read_text().splitlines(keepends=True) if line.endswith("\n"))
+        return found
+
+    try:
+        deadline = time.monotonic() + 600
+        while len(logged()) < 2 or min(logged().values()) < 2:
+            assert proc.poll() is None, stderr.read_text()[-3000:]
+            assert time.monotonic() < deadline, logged()
+            time.sleep(0.2)
+        seen = logged()
+        os.kill(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=300)
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, stderr.read_text()[-3000:]
+    said = stdout.read_text()
+    assert "stopping: the 2 trainings checkpoint at the end of their iteration" in said, said[-2000:]
+    for key, lines in seen.items():
+        last = json.loads((out / "runs" / key / "progress.jsonl").read_text().splitlines()[-1])["iteration"]
+        newest = latest(out / "runs" / key)
+        assert newest is not None and newest.name == f"model_{last:08d}.pt" and last >= lines, (key, newest, last, lines)
 
 
 def _forget(out, *steps):

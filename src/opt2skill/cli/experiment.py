@@ -58,6 +58,7 @@ def table3(
     """Table III (TO, IK, human; history 0/5/10/15) and Fig. 3 (stairs, slopes), resumable."""
     from opt2skill.experiment.settings import resolve
     from opt2skill.experiment.table3 import run_table3
+    from opt2skill.rl.processes import terminate_as_interrupt
 
     hist = _numbers(histories, "--histories")
     settings = resolve(setting, dict(
@@ -67,6 +68,7 @@ def table3(
         stairs=_numbers(stairs, "--stairs"), slopes=_numbers(slopes, "--slopes"), sweep_trials=sweep_trials,
         sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
         workers=workers, device=device, mixed_precision=mixed_precision or None))
+    terminate_as_interrupt()  # a kill checkpoints the trainings in flight; the same command resumes
     run_table3(settings, out, progress=not quiet)
 
 
@@ -120,6 +122,7 @@ def table4(
     """Table IV (Pos, Pos+F, Pos+T, Pos+F+T at six force levels), Fig. 4 and the desk-height transfer, resumable."""
     from opt2skill.experiment.settings import resolve
     from opt2skill.experiment.table4 import run_table4
+    from opt2skill.rl.processes import terminate_as_interrupt
     from opt2skill.experiment.table4_settings import Table4Settings
 
     names = tuple(a.strip() for a in ablations.split(",") if a.strip()) if ablations is not None else None
@@ -130,4 +133,5 @@ def table4(
         history=history, transfer_force=transfer_force, transfer_height=transfer_height,
         transfer_desks=_numbers(transfer_desks, "--transfer-desks"), n_transfer=n_transfer, timing=_timing(timing),
         seed=seed, device=device, workers=workers, mixed_precision=mixed_precision or None), kind=Table4Settings)
+    terminate_as_interrupt()
     run_table4(settings, out, progress=not quiet)

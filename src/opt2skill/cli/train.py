@@ -4,7 +4,6 @@ optimizer's feedback expert first), roll a checkpoint or the expert out."""
 from __future__ import annotations
 
 import shlex
-import signal
 import sys
 from pathlib import Path
 
@@ -14,21 +13,6 @@ import typer
 from opt2skill.cli.console import console, figures_table
 
 app = typer.Typer()
-
-
-def _terminate_as_interrupt() -> None:
-    """SIGTERM ends training like Ctrl-C: the trainer checkpoints what it has before exiting. A
-    process started by torchrun stops with its group at the end of the iteration (rl.processes)."""
-    from opt2skill.rl import processes
-
-    if processes.from_environment().size > 1:
-        processes.stop_together_on_signals()
-        return
-
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, handler)
 
 
 def _say(line: str) -> None:
@@ -97,6 +81,7 @@ def train(
 ) -> None:
     """Train a tracking policy on a dataset (PPO, rsl_rl); checkpoints, TensorBoard logs, resume."""
     from opt2skill.errors import ConfigError
+    from opt2skill.rl import processes
     from opt2skill.rl.best import JudgeConfig
     from opt2skill.rl.session import TrainRequest
     from opt2skill.rl.session import train as run
@@ -114,7 +99,7 @@ def train(
                            init_from=init_from)
     request.check()
     _warn_emulated_bf16(request)
-    _terminate_as_interrupt()
+    processes.terminate_as_interrupt()
     if init == "distill":
         from opt2skill.rl.distill_session import train as run_distilled
 

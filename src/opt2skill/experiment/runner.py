@@ -107,6 +107,8 @@ def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, An
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     from multiprocessing import get_context
 
+    from opt2skill.rl import processes
+
     workers = s.workers or os.cpu_count() or 1
     if s.device != "cpu" or workers < 2 or len(jobs) < 2:
         return
@@ -118,7 +120,10 @@ def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, An
                   "records its run", highlight=False)
     runs = [_LoggedSteps(run_dir(out, key)) for key, *_ in jobs]
     bar = _steps_bar(s, runs) if progress else None
-    with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+    # In each process SIGTERM and Ctrl-C end its training at the end of the iteration in flight,
+    # checkpointed (a default SIGTERM would lose everything since the last periodic checkpoint).
+    pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=processes.stop_together_on_signals)
+    try:
         started = time.perf_counter()
         pending = {pool.submit(train_policy, s, out, key, data, ablation, history, command, False, threads): key
                    for key, data, ablation, history in jobs}
@@ -134,8 +139,14 @@ def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, An
                 except Exception as exc:  # noqa: BLE001 - the step that follows retries it and records the failure
                     line = f"  {key}: failed in its process ({type(exc).__name__}: {exc}); its step retries it"
                 (bar.write if bar is not None else lambda text: console.print(text, highlight=False))(line)
-    if bar is not None:
-        bar.close()
+    except KeyboardInterrupt:  # stopped here (Ctrl-C, or SIGTERM to this process alone): the trainings too
+        console.print(f"stopping: the {len(jobs)} trainings checkpoint at the end of their iteration", highlight=False)
+        processes.interrupt_children()
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        if bar is not None:
+            bar.close()
 
 
 def _steps_bar(s: Any, runs: list[_LoggedSteps]):

@@ -107,11 +107,13 @@ class Group:
             reduce_gradients_in_buckets(parameters, self.size, 25)
 
     def stop_requested(self) -> bool:
-        """Whether any process of the group was asked to stop (SIGTERM or Ctrl-C, `launch`'s processes):
-        checked by every process at the end of an iteration, so that they stop together there (rank
-        0 then checkpoints) instead of one dying inside a collective the others wait in."""
+        """Whether any process of the group was asked to stop (SIGTERM or Ctrl-C, where
+        `stop_together_on_signals` set the handlers: `launch`'s processes and an experiment's side by
+        side trainings): checked by every process at the end of an iteration, so that they stop
+        together there (rank 0 then checkpoints) instead of one dying inside a collective the others
+        wait in, or inside an update that would leave nothing to save."""
         if self.size == 1:
-            return False
+            return _stop[0]
         value = torch.tensor([1 if _stop[0] else 0], dtype=torch.int64)
         torch.distributed.all_reduce(value, op=torch.distributed.ReduceOp.MAX)
         return bool(value.item())
@@ -197,6 +199,31 @@ _stop = [False]  # set by a signal in a process of `launch`'s group
 
 def _request_stop(signum, frame) -> None:
     _stop[0] = True
+
+
+def terminate_as_interrupt() -> None:
+    """SIGTERM ends a command like Ctrl-C (a KeyboardInterrupt: a trainer checkpoints what it has
+    before exiting, a batch job keeps what it wrote). A process started by torchrun stops with its
+    group at the end of the iteration instead (`stop_together_on_signals`)."""
+    if from_environment().size > 1:
+        stop_together_on_signals()
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+
+
+def interrupt_children() -> None:
+    """SIGTERM to this process's living multiprocessing children: their trainings stop at the end of
+    the iteration in flight and checkpoint (waiting for them is the caller's: a pool's workers
+    outlive their tasks)."""
+    import multiprocessing
+
+    for child in multiprocessing.active_children():
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(child.pid, signal.SIGTERM)
 
 
 def stop_together_on_signals() -> None:
