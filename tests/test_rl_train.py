@@ -187,3 +187,47 @@ def test_a_fine_tune_starts_from_another_runs_networks_optimizer_and_curriculum(
     out = subprocess.run([*CLI, "train", "--dataset", str(squats), "--out", str(tmp_path / "both"), "--init", "distill",
                           "--init-from", str(source)], capture_output=True, text=True, timeout=120)
     assert out.returncode == 2 and "give one of them" in out.stderr and not (tmp_path / "both").exists()
+
+
+def test_reward_terms_changed_from_table_i_train_are_recorded_and_bad_changes_refused(squats, tmp_path):
+    """`--reward NAME=WEIGHT[:SCALE]`: the run trains with the changed terms (the logged term is paid at
+    the new weight), run.json records them, a resume with other changes is refused; an unknown term,
+    a wrong sign, a force or torque term without those inputs, or a malformed change is one error
+    before anything is written."""
+    from opt2skill.envs.config import parse_reward
+
+    walk = tracking_config("walk", rewards_changed=(("base_lin_vel", 0.3, 8.0), ("base_pos", 0.2, None))).rewards
+    assert (walk.base_lin_vel.weight, walk.base_lin_vel.scale) == (0.3, 8.0)
+    assert (walk.base_pos.weight, walk.base_pos.scale) == (0.2, 20.0)  # on for walking, Table I's own kernel
+    assert tracking_config("walk").rewards.base_pos.weight == 0.0 and tracking_config("walk").rewards.base_lin_vel.scale == 2.0
+    assert parse_reward(" joint_pos = 0.5 : 3 ") == ("joint_pos", 0.5, 3.0) and parse_reward("torque=-0.1") == ("torque", -0.1, None)
+
+    run = tmp_path / "run"
+    request = TrainRequest(dataset=squats, out=run, steps=4 * 48, num_envs=4, threads=1,
+                           rewards=(("base_ori", 0.0, None), ("joint_pos", 0.6, 2.5)))
+    session.train(request, progress=False)
+    rewards = read_run(run)["identity"]["tracking"]["rewards"]
+    assert rewards["joint_pos"] == {"weight": 0.6, "scale": 2.5, "kernel": "exp_sq"} and rewards["base_ori"]["weight"] == 0.0
+    logged = read_progress(run)[-1]
+    assert logged["reward_terms/base_ori"] == 0.0 and 0.3 < logged["reward_terms/joint_pos"] <= 0.6
+    with pytest.raises(ConfigError, match=r"different configuration \(.*joint_pos.scale: 2.5 -> 5.0"):
+        session.train(dataclasses.replace(request, steps=2 * 4 * 48, rewards=(("base_ori", 0.0, None), ("joint_pos", 0.6, 5.0))),
+                      progress=False)
+    for rewards, message in (
+        ((("speed", 1.0, None),), "unknown term 'speed'; terms: joint_pos, base_pos"),
+        ((("joint_pos", -0.3, None),), "reward 'joint_pos' must have a weight >= 0"),
+        ((("action_rate", 0.05, None),), "penalty 'action_rate' must have a weight <= 0"),
+        ((("joint_pos", 0.3, -1.0),), "scale must be >= 0"),
+    ):
+        out = tmp_path / "refused"
+        with pytest.raises(ConfigError, match=message):
+            session.train(dataclasses.replace(request, out=out, rewards=rewards), progress=False)
+        assert not out.exists()
+    with pytest.raises(ConfigError, match="no reference joint torques to reward"):
+        TrainRequest(dataset=squats, out=tmp_path / "x", ablation="pos", rewards=(("joint_torque", 0.1, None),)).check()
+    for text in ("joint_pos", "joint_pos=", "joint_pos=a:1", "=0.3"):
+        out = subprocess.run([*CLI, "train", "--dataset", str(squats), "--out", str(tmp_path / "bad"), "--reward", text],
+                             capture_output=True, text=True, timeout=120)
+        lines = out.stderr.strip().splitlines()
+        assert out.returncode == 2 and len(lines) == 1 and "--reward expects NAME=WEIGHT" in lines[0], (text, out.stderr)
+        assert not (tmp_path / "bad").exists()

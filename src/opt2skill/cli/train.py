@@ -77,9 +77,13 @@ def train(
     base_position: str = typer.Option("task", "--base-position", help="The base-position reward: task (as the "
                                       "task has it: Table I leaves it out for walking), on or off (a deviation "
                                       "from the paper, recorded in run.json)."),
+    reward: list[str] = typer.Option([], "--reward", help="A reward term's weight and kernel scale changed from "
+                                     "Table I, NAME=WEIGHT[:SCALE] (repeatable; e.g. base_lin_vel=0.3:8; a "
+                                     "deviation from the paper, recorded in run.json). Terms: docs/envs.md."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Train a tracking policy on a dataset (PPO, rsl_rl); checkpoints, TensorBoard logs, resume."""
+    from opt2skill.envs.config import parse_reward
     from opt2skill.errors import ConfigError
     from opt2skill.rl import processes
     from opt2skill.rl.best import JudgeConfig
@@ -96,7 +100,7 @@ def train(
                            command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out, kp_scale=kp_scale, sampling=sampling,
                            judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed), device=device,
                            procs=procs, mixed_precision=mixed_precision, base_position=base_position,
-                           init_from=init_from)
+                           init_from=init_from, rewards=tuple(parse_reward(text) for text in reward))
     request.check()
     _warn_emulated_bf16(request)
     processes.terminate_as_interrupt()

@@ -301,10 +301,42 @@ def check_reference_inputs(ablation: str, has_dynamics: bool, source: str = "to"
 BASE_POSITION = ("task", "on", "off")
 
 
+def parse_reward(text: str) -> tuple[str, float, float | None]:
+    """'NAME=WEIGHT' or 'NAME=WEIGHT:SCALE' (`train --reward`) as (name, weight, scale or None)."""
+    name, sep, value = text.partition("=")
+    weight, _, scale = value.partition(":")
+    try:
+        if not (sep and name.strip() and weight.strip()):
+            raise ValueError
+        return name.strip(), float(weight), float(scale) if scale.strip() else None
+    except ValueError:
+        raise ConfigError(f"--reward expects NAME=WEIGHT or NAME=WEIGHT:SCALE (e.g. base_lin_vel=0.3:8), "
+                          f"got '{text}'") from None
+
+
+def with_rewards(rewards: RewardConfig, changes: tuple[tuple[str, float, float | None], ...], force: bool = True,
+                 torque: bool = True) -> RewardConfig:
+    """Table I's terms with `changes` ((name, weight, scale or None: the term's own)) applied: a deviation
+    from the paper, recorded with the run's config. A force or torque term needs those inputs."""
+    terms = rewards.terms()
+    for name, weight, scale in changes:
+        if name not in terms:
+            raise ConfigError(f"--reward: unknown term '{name}'; terms: {', '.join(terms)}")
+        if weight != 0 and ((name == "contact_force" and not force) or (name == "joint_torque" and not torque)):
+            raise ConfigError(f"--reward {name}: this ablation has no reference {name.replace('_', ' ')}s to "
+                              "reward (use --ablation pos_f_t, or pos_f / pos_t)")
+        term = dataclasses.replace(terms[name], weight=weight, scale=terms[name].scale if scale is None else scale)
+        term.check(name)
+        terms[name] = term
+    return RewardConfig(**terms)
+
+
 def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10, kp_scale: float = 1.0,
-                    sampling: str = "uniform", base_position: str = "task") -> TrackingConfig:
+                    sampling: str = "uniform", base_position: str = "task",
+                    rewards_changed: tuple[tuple[str, float, float | None], ...] = ()) -> TrackingConfig:
     """The defaults for a dataset of `task`, with an ablation, a history length, a servo stiffness,
-    the episodes' start sampling and the base-position reward's choice (BASE_POSITION) applied."""
+    the episodes' start sampling, the base-position reward's choice (BASE_POSITION) and any reward
+    terms' weights and scales (`with_rewards`) applied, in that order."""
     if ablation not in ABLATIONS:
         raise ConfigError(f"ablation must be one of {', '.join(ABLATIONS)}, got '{ablation}'")
     if base_position not in BASE_POSITION:
@@ -319,6 +351,7 @@ def tracking_config(task: str = "", ablation: str = "pos_f_t", history: int = 10
         contact_force=rewards.contact_force if force else dataclasses.replace(rewards.contact_force, weight=0.0),
         joint_torque=rewards.joint_torque if torque else dataclasses.replace(rewards.joint_torque, weight=0.0),
     )
+    rewards = with_rewards(rewards, rewards_changed, force, torque)
     observations = ObservationConfig(history=history, reference_force=force, reference_torque=torque)
     config = TrackingConfig(task=task, ablation=ablation, observations=observations, rewards=rewards,
                             actions=ActionConfig(kp_scale=kp_scale), episodes=EpisodeConfig(sampling=sampling))

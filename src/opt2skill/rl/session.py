@@ -16,7 +16,8 @@ import torch
 
 from opt2skill.data.reader import Dataset
 from opt2skill.envs import ABLATIONS, ReferenceBank, TrackingEnv, evaluation_config, tracking_config
-from opt2skill.envs.config import BASE_POSITION, SAMPLINGS, TrackingConfig, check_reference_inputs
+from opt2skill.envs.config import (BASE_POSITION, SAMPLINGS, RewardConfig, TrackingConfig, check_reference_inputs,
+                                  with_rewards)
 from opt2skill.envs.evaluation import TrackedMotion, track
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.eval.references import check_contacts
@@ -60,6 +61,8 @@ class TrainRequest:
     base_position: str = "task"  # the base-position reward: as the task registers it, on or off (envs.config)
     # A run (its newest checkpoint) or a checkpoint file to start PPO from: a fine-tune (`init_source`)
     init_from: Path | None = None
+    # Reward terms changed from Table I: (name, weight, scale or None), envs.config.with_rewards
+    rewards: tuple[tuple[str, float, float | None], ...] = ()
 
     def check(self) -> None:
         if not (isinstance(self.steps, int) and self.steps >= 1):
@@ -86,6 +89,8 @@ class TrainRequest:
             raise ConfigError(f"--procs must be in [1, {MAX_PROCS}] processes, got {self.procs}")
         if self.base_position not in BASE_POSITION:
             raise ConfigError(f"--base-position must be one of {', '.join(BASE_POSITION)}, got '{self.base_position}'")
+        force, torque = ABLATIONS[self.ablation]
+        with_rewards(RewardConfig(), self.rewards, force, torque)  # names, signs and inputs, before any reading
 
     def ppo(self) -> PPOConfig:
         """The PPO settings this request changes from the defaults (a distilled run's PPO stage starts from them)."""
@@ -206,7 +211,7 @@ def prepare(request: TrainRequest, size: int, check_existing: bool = True) -> Pr
         first = dataset.meta(0)
         check_reference_inputs(request.ablation, first.has_dynamics, first.source)
     config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
-                             request.sampling, request.base_position)
+                             request.sampling, request.base_position, request.rewards)
     ppo = request.ppo()
     source = init_source(request.init_from, robot, config) if request.init_from is not None else None
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
