@@ -42,6 +42,7 @@ def test_overrides_nested_or_dotted_leave_the_defaults_alone(robot):
         ({"solver.dt": 0.033}, r"solver.dt = 0.033 s must be a positive multiple of the frame period"),
         ({"solver.completion": "magic"}, r"solver.completion must be one of"),
         ({"solver.reg_increase_below": 0.5}, r"solver.reg_increase_below must be in \(0, 0.5\)"),
+        ({"solver.accept_step": 1.0}, r"solver.accept_step must be in \[0, 1\)"),
         ({"solver": 3}, r"'solver' is a section"),
         ({"ranges": {"speed": [0.0, 2.0]}}, r"'speed' = 2 m/s is outside its allowed range \[0, 1.5\] m/s"),
         ({"ranges": {"sped": [0.0, 1.0]}}, r"unknown parameter 'sped'"),

@@ -132,3 +132,18 @@ def test_short_steps_raise_the_regularization_below_the_setting(robot, threshold
     # steps between the two settings occur (raised with 0.2, kept with 0.01), and both changes do
     assert any(0.2 >= step > 0.01 for step in sol.steps)
     assert {"raised", "lowered"} <= seen
+
+
+def test_a_stricter_acceptance_takes_shorter_steps(robot):
+    """`solver.accept_step` is Crocoddyl's th_acceptStep: the same solve with a stricter share of the
+    predicted decrease follows the default until an iteration whose longer trial steps fall short of
+    it, and there takes a shorter step (the line search tries 1, 1/2, ... in order)."""
+    task = get_task("walk", robot, {"steps": 2, "duration": 1.5})
+    plan = task.plan(PARAMS)
+    problem = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
+    steps = {}
+    for accept in (0.1, 0.9):
+        settings = dataclasses.replace(task.config.solver, stall_tol=0.0, accept_step=accept)
+        steps[accept] = solve_shooting(problem.shooting, settings, max_iter=25).steps
+    first = next(i for i, (default, strict) in enumerate(zip(steps[0.1], steps[0.9])) if default != strict)
+    assert steps[0.9][first] < steps[0.1][first], (first, steps)

@@ -66,6 +66,9 @@ class SolverSettings:
     # th_stepInc). 0.2 takes 12 to 16 % of a walk's solver work, with somewhat worse plans on a few
     # walks (docs/trajopt.md, "Speed: the solver's own levers"); not the default.
     reg_increase_below: float = 0.01
+    # A trial step is accepted when the cost falls by at least this fraction of the decrease the
+    # quadratic model predicts for it (Crocoddyl's th_acceptStep, an Armijo condition); 0.1 is Crocoddyl's.
+    accept_step: float = 0.1
     completion: str = "track"  # 200 Hz frames: "track" (acceleration tracking, exact), "rollout" (feedback law) or "interpolate"
     track_bandwidth: float = 30.0  # rad/s, the PD of the "track" completion (Kp = bandwidth^2, Kd = 2 bandwidth)
     keep_gains: bool = False  # store the feedback gains K with the knots (traj.knots)
@@ -84,6 +87,7 @@ class SolverSettings:
         require(self.max_iter >= 1, "solver.max_iter must be >= 1")
         require(1 <= self.line_search_steps <= 20, "solver.line_search_steps must be in [1, 20]")
         require(0 < self.reg_increase_below < 0.5, "solver.reg_increase_below must be in (0, 0.5): longer steps lower the regularization")
+        require(0 <= self.accept_step < 1, "solver.accept_step must be in [0, 1): the share of the predicted decrease a step must reach")
         require(self.stop > 0, "solver.stop must be > 0")
         require(self.stall_window >= 1 and self.stall_tol >= 0, "solver.stall_window >= 1 and stall_tol >= 0")
         require(self.integrator in INTEGRATORS, f"solver.integrator must be one of {INTEGRATORS}, got '{self.integrator}'")

@@ -110,6 +110,7 @@ def solve_shooting(
     solver = crocoddyl.SolverBoxFDDP(shooting)
     solver.alphas = [2.0**-i for i in range(settings.line_search_steps)]
     solver.th_stepInc = settings.reg_increase_below
+    solver.th_acceptStep = settings.accept_step
     solver.th_stop = settings.stop
     monitor = _Monitor(settings)
     solver.setCallbacks([monitor])
