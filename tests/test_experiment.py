@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import time
@@ -15,6 +16,7 @@ import pytest
 
 from eval_support import CLI
 from opt2skill.errors import ConfigError, DataError
+from opt2skill.eval.evaluate import load_run_policy
 from opt2skill.eval.metrics import TrackingErrors
 from opt2skill.eval.report import EvalReport, TrajectoryResult
 from opt2skill.experiment.settings import claim_folder, resolve
@@ -79,6 +81,16 @@ def test_quick_setting_writes_every_table_and_figure_and_resumes(tmp_path):
     provenance = json.loads((out / "provenance.json").read_text())
     assert provenance["provenance"]["robot_hash"] and provenance["settings"]["n_train"] == 1
     assert "Table III:" in r.stdout and "fig3.png" in r.stdout
+    # Each finished policy's actor is kept beside its (uncommitted) checkpoints: where they are gone, the
+    # run is evaluated with that actor, which acts as the newest checkpoint did.
+    for key, result in runs.items():
+        assert result["policy"] == str(out / "runs" / key / "final" / "model.pt"), (key, result)
+    obs = np.random.default_rng(0).normal(size=(3, load_run_policy(out / "runs" / "to").policy.obs_dim))
+    newest = load_run_policy(out / "runs" / "to").policy(obs)
+    shutil.rmtree(out / "runs" / "to" / "checkpoints")
+    final = load_run_policy(out / "runs" / "to")
+    assert final.info["checkpoint"].endswith("final/model.pt") and final.info["iteration"] == runs["to"]["iteration"]
+    assert np.array_equal(final.policy(obs), newest)
     # A rerun skips every finished step and rewrites none of them.
     stamps = {p.name: p.stat().st_mtime_ns for p in (out / "steps").glob("*.json")}
     start = time.perf_counter()

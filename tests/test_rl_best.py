@@ -84,3 +84,16 @@ def test_a_trainer_judges_on_its_schedule_and_keeps_a_real_checkpoint(recorded, 
     best = max(lines, key=score)
     kept = checkpoint.load(checkpoint.best_path(tmp_path))
     assert kept["iteration"] == best["iteration"] and "alg" in kept
+
+
+def test_eval_takes_the_best_then_the_newest_checkpoint_then_the_finished_actor(tmp_path):
+    assert checkpoint.policy_default(tmp_path) is None
+    final = checkpoint.final_path(tmp_path)
+    final.parent.mkdir()
+    final.write_bytes(b"actor")
+    assert checkpoint.policy_default(tmp_path) == final  # a run carried without its checkpoints
+    newest = checkpoint.save(tmp_path, 7, {"env_steps": 0})
+    assert checkpoint.policy_default(tmp_path) == newest
+    checkpoint.best_path(tmp_path).parent.mkdir()
+    checkpoint.best_path(tmp_path).write_bytes(b"best")
+    assert checkpoint.policy_default(tmp_path) == checkpoint.best_path(tmp_path)

@@ -218,6 +218,8 @@ def test_reward_terms_changed_from_table_i_train_are_recorded_and_bad_changes_re
         ((("joint_pos", -0.3, None),), "reward 'joint_pos' must have a weight >= 0"),
         ((("action_rate", 0.05, None),), "penalty 'action_rate' must have a weight <= 0"),
         ((("joint_pos", 0.3, -1.0),), "scale must be >= 0"),
+        ((("joint_pos", float("inf"), None),), "weight and scale must be finite numbers, got inf"),
+        ((("joint_pos", 0.3, float("nan")),), "weight and scale must be finite numbers, got 0.3 and nan"),
     ):
         out = tmp_path / "refused"
         with pytest.raises(ConfigError, match=message):

@@ -8,6 +8,7 @@ nothing else varies the environment. docs/envs.md explains each value.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 from opt2skill.errors import ConfigError
@@ -41,6 +42,8 @@ class Term:
 
     def check(self, name: str) -> None:
         _require(self.kernel in KERNELS, f"reward '{name}': kernel must be one of {KERNELS}, got '{self.kernel}'")
+        _require(math.isfinite(self.weight) and math.isfinite(self.scale),
+                 f"reward '{name}': weight and scale must be finite numbers, got {self.weight} and {self.scale}")
         _require(self.scale >= 0, f"reward '{name}': scale must be >= 0, got {self.scale}")
         if self.kernel == "sq":
             _require(self.weight <= 0, f"penalty '{name}' must have a weight <= 0, got {self.weight}")

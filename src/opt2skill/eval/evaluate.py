@@ -82,18 +82,19 @@ def load_run_policy(run: Path, checkpoint: Path | None = None) -> RunPolicy:
     if path is None:
         raise DataError(f"run {run} has no checkpoint yet")
     ppo_dir, distill_dir = checkpoints.policy_checkpoint_dirs(run)
-    best_dir = checkpoints.best_path(run).parent
-    if path.resolve().parent not in (ppo_dir.resolve(), distill_dir.resolve(), best_dir.resolve()):
+    best_dir, final_dir = checkpoints.best_path(run).parent, checkpoints.final_path(run).parent
+    if path.resolve().parent not in (ppo_dir.resolve(), distill_dir.resolve(), best_dir.resolve(), final_dir.resolve()):
         # A checkpoint carries no task or robot: only its own run says what it was trained for.
         raise DataError(f"checkpoint {path} is not one of run {run}'s ({ppo_dir}, {distill_dir} for the "
-                        f"distillation stage, or {best_dir}); evaluate the run it belongs to")
+                        f"distillation stage, {best_dir} or {final_dir}); evaluate the run it belongs to")
     policy, _ = load_policy(run, path)
     expected = layout(spec.tracking.observations, robot.nu, len(spec.contact_names(robot))).actor_dim
     if policy.obs_dim != expected:
         raise DataError(f"checkpoint {path} takes {policy.obs_dim} observations; run {run}'s task gives {expected} "
                         "(a checkpoint of another run or configuration)")
     t = spec.tracking
-    stage = {distill_dir.resolve(): "distillation ", best_dir.resolve(): "best: "}.get(path.resolve().parent, "")
+    stage = {distill_dir.resolve(): "distillation ", best_dir.resolve(): "best: ",
+             final_dir.resolve(): "final: "}.get(path.resolve().parent, "")
     name = f"{run.name} ({stage}iteration {policy.iteration})"
     info = {
         "name": name, "run": str(run.resolve()), "checkpoint": str(path.resolve()), "iteration": policy.iteration,

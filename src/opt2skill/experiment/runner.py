@@ -92,7 +92,15 @@ def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: st
     elapsed = time.perf_counter() - start
     return {"run": str(request.out), "ablation": ablation, "history": history, "iteration": result["iteration"],
             "env_steps": result["env_steps"], "train_s": elapsed, "references": data["counts"]["accepted"],
-            "distill_env_steps": result.get("distill_env_steps", 0)}
+            "distill_env_steps": result.get("distill_env_steps", 0), "policy": str(keep_final_actor(request.out))}
+
+
+def keep_final_actor(run: Path) -> Path:
+    """RUN/final/model.pt, the finished run's actor alone: committed with the experiment's folder
+    (its checkpoints are not), so that its policies can be evaluated again on another machine."""
+    from opt2skill.rl import checkpoint as checkpoints
+
+    return checkpoints.save_actor(checkpoints.latest(run), checkpoints.final_path(run))
 
 
 def train_policies_at_once(s: Any, out: Path, jobs: list[tuple[str, dict[str, Any], str, int]], command: str,

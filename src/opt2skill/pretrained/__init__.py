@@ -24,8 +24,6 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from opt2skill.data.atomic import write_json
 from opt2skill.errors import ConfigError, DataError
 
@@ -101,18 +99,13 @@ def pack(run: Path, name: str, root: Path = ROOT, checkpoint: Path | None = None
     if fingerprints is None:
         raise DataError(f"run {run}'s training dataset is gone or changed: the shipped policy could not say which "
                         "references it trained on")
-    data = checkpoints.load(Path(source.info["checkpoint"]))
-    actor = data["alg"]["actor_state_dict"] if "alg" in data else data["actor_state_dict"]
     target = Path(root) / name
     staging = Path(root) / f".{name}.packing"
     shutil.rmtree(staging, ignore_errors=True)
     (staging / checkpoints.BEST_DIR).mkdir(parents=True)
     written = read_run(run)
     write_json(staging / "run.json", {**written, "invocations": written.get("invocations", [])[-3:]})
-    torch.save({"format": checkpoints.FORMAT, "format_version": checkpoints.FORMAT_VERSION,
-                "iteration": data["iteration"], "env_steps": data["env_steps"], "elapsed": data.get("elapsed", 0.0),
-                "dims": data["dims"], "identity": data.get("identity"), "actor_state_dict": actor},
-               staging / checkpoints.BEST_DIR / "model.pt")
+    checkpoints.save_actor(Path(source.info["checkpoint"]), staging / checkpoints.BEST_DIR / "model.pt")
     write_json(staging / FINGERPRINTS, {"fingerprints": fingerprints})
     export_policy(run, staging / ONNX, Path(source.info["checkpoint"]))  # its metadata names the source run
     for report in reports:

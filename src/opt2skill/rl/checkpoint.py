@@ -30,15 +30,38 @@ DISTILL_STAGE_DIR = "distill"  # RUN/distill: the distillation stage of `train -
 BEST_DIR = "best"  # RUN/best/model.pt: the best actor by held-out judgement (rl.best)
 
 
+# RUN/final/model.pt: the actor of the finished run alone (about 3 MB against a checkpoint's 17), which
+# an experiment keeps so that its policies can be evaluated again where its checkpoints are gone.
+FINAL_DIR = "final"
+
+
 def best_path(run: Path) -> Path:
     return Path(run) / BEST_DIR / "model.pt"
 
 
+def final_path(run: Path) -> Path:
+    return Path(run) / FINAL_DIR / "model.pt"
+
+
 def policy_default(run: Path) -> Path | None:
     """The checkpoint that eval and export take when none is named: the best by held-out judgement if
-    the run kept one (rl.best), else the newest."""
-    best = best_path(run)
-    return best if best.is_file() else latest(run)
+    the run kept one (rl.best), else the newest, else the finished run's actor (`save_actor`)."""
+    best, final = best_path(run), final_path(run)
+    return best if best.is_file() else latest(run) or (final if final.is_file() else None)
+
+
+def save_actor(source: Path, target: Path) -> Path:
+    """`target`: the actor of checkpoint `source` (normalizer included) with its dims, identity and
+    counts, without the critic, the optimizer and the generators; readable wherever a checkpoint is."""
+    data = load(Path(source))
+    actor = data["alg"]["actor_state_dict"] if "alg" in data else data["actor_state_dict"]
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(target) as tmp:
+        torch.save({"format": FORMAT, "format_version": FORMAT_VERSION, "iteration": data["iteration"],
+                    "env_steps": data["env_steps"], "elapsed": data.get("elapsed", 0.0), "dims": data["dims"],
+                    "identity": data.get("identity"), "actor_state_dict": actor}, tmp)
+    return target
 
 
 def checkpoint_dir(run: Path) -> Path:
