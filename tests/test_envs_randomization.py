@@ -135,6 +135,43 @@ def test_observation_noise_is_table_ii_scaled_by_the_curriculum_and_only_for_the
     env.close()
 
 
+def test_each_world_reads_its_own_share_of_the_noise_when_asked_and_evaluation_reads_it_in_full(recorded):
+    traj, targets = recorded
+    base = training_config(enabled=False)
+    config = dataclasses.replace(base, observations=dataclasses.replace(
+        base.observations, noise=dataclasses.replace(base.observations.noise, per_world_min=0.0)))
+    env = make_env([traj], config, num_envs=64, seed=0)
+    env.set_progress(1.0)
+    env.reset_worlds(np.arange(64), np.zeros(64, dtype=int), np.zeros(64, dtype=int))  # all following the reference
+    share = env._noise_share[:, 0].copy()
+    assert 0 <= share.min() < 0.1 and 0.9 < share.max() <= 1 and share.std() > 0.2  # spread over [0, 1]
+    a, c = env.layout.actor, env.layout.critic
+    noise = env.config.observations.noise
+    sigma = {"joint_vel": noise.joint_vel, "joint_pos_history": noise.joint_pos}
+    diffs, shares = {k: [] for k in sigma}, {k: [] for k in sigma}
+    for t in targets[1:13]:
+        result = env.step(env.actions_for_targets(np.tile(t, (64, 1))))
+        for k in sigma:
+            diffs[k].append(result.actor[:, a[k]] - result.critic[:, c[k]])
+            shares[k].append(np.repeat(env._noise_share, diffs[k][-1].shape[1], axis=1))  # a reset draws anew
+    for k in sigma:
+        d, s = np.concatenate(diffs[k], axis=1), np.concatenate(shares[k], axis=1)
+        assert np.corrcoef(d.std(axis=1), s.mean(axis=1))[0, 1] > 0.95, k  # each world's deviation follows its share
+        read = s > 0.05
+        assert abs(np.std(d[read] / s[read]) / sigma[k] - 1) < 0.05, k  # and is Table II's times it
+    env.reset_worlds(np.array([3]))
+    assert env._noise_share[3, 0] != share[3] and np.array_equal(env._noise_share[4:, 0], share[4:])
+    env.close()
+    full = evaluation_config(config, noise=True)  # evaluation: Table II's noise in every world, or none
+    assert full.observations.noise == base.observations.noise
+    assert evaluation_config(config).observations.noise.joint_pos == 0
+    with pytest.raises(ConfigError, match="per_world_min must be in"):
+        dataclasses.replace(noise, per_world_min=1.5).check()
+    # at the paper's setting no share is drawn: every world reads the noise in full, and the random
+    # stream (so every run before the option) is unchanged
+    assert np.all(make_env([traj], base, num_envs=4, seed=0)._noise_share == 1)
+
+
 def test_same_seed_same_episodes_whatever_the_threads_and_another_seed_differs(recorded):
     traj, targets = recorded
     actions = np.random.default_rng(7).normal(0, 0.3, (40, 8, ROBOT.nu))

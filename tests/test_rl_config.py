@@ -73,6 +73,11 @@ def test_runs_made_before_adaptive_starts_still_resume_and_an_adaptive_run_is_an
     assert RunSpec.from_dict(adaptive.to_dict()) == adaptive
     with pytest.raises(ConfigError, match=r"tracking.episodes.sampling: - -> adaptive"):
         open_run(run, adaptive, {})
+    assert "per_world_min" not in spec.to_dict()["tracking"]["observations"]["noise"]  # nor before --noise-min
+    spread = dataclasses.replace(spec, tracking=tracking_config("walk", noise_min=0.0))
+    assert RunSpec.from_dict(spread.to_dict()) == spread
+    with pytest.raises(ConfigError, match=r"tracking.observations.noise.per_world_min: - -> 0.0"):
+        open_run(run, spread, {})
 
 
 def test_mixed_precision_reaches_rsl_rl_updates_and_is_part_of_a_runs_configuration(tmp_path):

@@ -178,6 +178,7 @@ def test_a_fine_tune_starts_from_another_runs_networks_optimizer_and_curriculum(
         (dict(init_from=tmp_path / "empty"), DataError, "has no checkpoint to start from"),
         (dict(init_from=tmp_path / "missing.pt"), DataError, "does not exist"),
         (dict(base_position="maybe"), ConfigError, "--base-position must be one of task, on, off"),
+        (dict(noise_min=1.5), ConfigError, "--noise-min must be a share in \\[0, 1\\]"),
     ):
         (tmp_path / "empty").mkdir(exist_ok=True)
         out = tmp_path / "refused"

@@ -80,6 +80,11 @@ def train(
     reward: list[str] = typer.Option([], "--reward", help="A reward term's weight and kernel scale changed from "
                                      "Table I, NAME=WEIGHT[:SCALE] (repeatable; e.g. base_lin_vel=0.3:8; a "
                                      "deviation from the paper, recorded in run.json). Terms: docs/envs.md."),
+    noise_min: float = typer.Option(1.0, "--noise-min", help="The least share in [0, 1] of Table II's observation "
+                                    "noise a world trains with: each world draws its share uniformly in [SHARE, 1] "
+                                    "at every reset. 1 (the paper): every world at full noise; below 1 the policy "
+                                    "also meets the noise-free world (a deviation from the paper, recorded in "
+                                    "run.json; docs/experiments.md)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
 ) -> None:
     """Train a tracking policy on a dataset (PPO, rsl_rl); checkpoints, TensorBoard logs, resume."""
@@ -100,7 +105,8 @@ def train(
                            command=shlex.join(["opt2skill", *sys.argv[1:]]), held_out=held_out, kp_scale=kp_scale, sampling=sampling,
                            judge=JudgeConfig(every=judge_every, n=judge_n, seed=seed), device=device,
                            procs=procs, mixed_precision=mixed_precision, base_position=base_position,
-                           init_from=init_from, rewards=tuple(parse_reward(text) for text in reward))
+                           init_from=init_from, rewards=tuple(parse_reward(text) for text in reward),
+                           noise_min=noise_min)
     request.check()
     _warn_emulated_bf16(request)
     processes.terminate_as_interrupt()

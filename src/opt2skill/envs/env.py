@@ -118,6 +118,7 @@ class TrackingEnv:
         self._act_hist = StridedHistory(n, nu, obs.history, obs.stride)
         self._q_hist = StridedHistory(n, nu, obs.history, obs.stride)
         self._q_hist_noisy = StridedHistory(n, nu, obs.history, obs.stride)
+        self._noise_share = np.ones((n, 1))  # each world's share of the noise (NoiseConfig.per_world_min)
         self._push_countdown = np.zeros(n, dtype=np.int64)  # policy steps until each world's next push
         self.starts = StartSampler(config.episodes, bank.length, FRAME_DT)  # where new episodes begin
         self.set_progress(0.0)
@@ -212,7 +213,10 @@ class TrackingEnv:
         self.action_2[worlds] = held
         self._act_hist.reset(worlds, held)
         self._q_hist.reset(worlds, m.joint_pos)
-        sigma = self.noise_factor * self.config.observations.noise.joint_pos
+        noise = self.config.observations.noise
+        if noise.per_world_min < 1:  # no draws otherwise: a run at full noise keeps its random stream
+            self._noise_share[worlds, 0] = self.rng.uniform(noise.per_world_min, 1.0, k)
+        sigma = (self.noise_factor * self._noise_share[worlds] * noise.joint_pos)[:, :, None]
         depth = self._q_hist_noisy.depth
         self._q_hist_noisy.reset(worlds, m.joint_pos[:, None, :] + sigma * self.rng.standard_normal((k, depth, self.nu)))
         self._kp, self._kd, self._limit = self.sim.gains()
@@ -248,7 +252,8 @@ class TrackingEnv:
         self._act_hist.push(a)
         self._q_hist.push(m.joint_pos)
         sigma = self.noise_factor * cfg.observations.noise.joint_pos
-        self._q_hist_noisy.push(m.joint_pos + sigma * self.rng.standard_normal(m.joint_pos.shape) if sigma else m.joint_pos)
+        self._q_hist_noisy.push(m.joint_pos + sigma * self._noise_share * self.rng.standard_normal(m.joint_pos.shape)
+                                if sigma else m.joint_pos)
         self.frame += 1
         self._row += 1
         self.steps += 1
@@ -288,8 +293,8 @@ class TrackingEnv:
         if self._props_on:
             values["prop_pos_error"] = self._prop_offsets(self.state, self._row).reshape(self.num_envs, -1)
         critic = fill(np.empty((self.num_envs, self.critic_dim), np.float32), self.layout.critic, values)
-        noise, f = obs_cfg.noise, self.noise_factor
-        if f > 0:
+        noise, f = obs_cfg.noise, self.noise_factor * self._noise_share
+        if self.noise_factor > 0:
             z = self.rng.standard_normal((self.num_envs, 9 + self.nu))
             values["base_lin_vel"] = m.base_lin_vel + f * noise.base_lin_vel * z[:, 0:3]
             values["base_ang_vel"] = m.base_ang_vel + f * noise.base_ang_vel * z[:, 3:6]

@@ -217,7 +217,7 @@ def _prepare(request: TrainRequest, distill: DistillConfig, distill_steps: int, 
     dataset, robot = open_dataset(request.dataset)
     _check_gains(dataset)
     task = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
-                           request.sampling, request.base_position, request.rewards)
+                           request.sampling, request.base_position, request.rewards, request.noise_min)
     config = finetune_tracking_config(task, distill)
     ppo = distill.finetune_ppo(request.ppo())
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,

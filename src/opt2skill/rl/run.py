@@ -74,6 +74,9 @@ class RunSpec:
             del data["init_from"]
         if not data["ppo"]["mixed_precision"]:  # float32, as every run before the option: left out, so they resume
             del data["ppo"]["mixed_precision"]
+        noise = data["tracking"]["observations"]["noise"]
+        if noise["per_world_min"] == 1.0:  # every world at full noise, as every run before the option
+            del noise["per_world_min"]
         episodes, default = data["tracking"]["episodes"], dataclasses.asdict(EpisodeConfig())
         for key in LATER_EPISODE_KEYS:  # at their defaults they are what runs before them did: leave them out
             if episodes.get(key) == default[key]:

@@ -63,6 +63,8 @@ class TrainRequest:
     init_from: Path | None = None
     # Reward terms changed from Table I: (name, weight, scale or None), envs.config.with_rewards
     rewards: tuple[tuple[str, float, float | None], ...] = ()
+    # The least share of Table II's observation noise a world trains with (envs.config.NoiseConfig)
+    noise_min: float = 1.0
 
     def check(self) -> None:
         if not (isinstance(self.steps, int) and self.steps >= 1):
@@ -89,6 +91,8 @@ class TrainRequest:
             raise ConfigError(f"--procs must be in [1, {MAX_PROCS}] processes, got {self.procs}")
         if self.base_position not in BASE_POSITION:
             raise ConfigError(f"--base-position must be one of {', '.join(BASE_POSITION)}, got '{self.base_position}'")
+        if not 0 <= self.noise_min <= 1:
+            raise ConfigError(f"--noise-min must be a share in [0, 1] of Table II's observation noise, got {self.noise_min}")
         force, torque = ABLATIONS[self.ablation]
         with_rewards(RewardConfig(), self.rewards, force, torque)  # names, signs and inputs, before any reading
 
@@ -211,7 +215,7 @@ def prepare(request: TrainRequest, size: int, check_existing: bool = True) -> Pr
         first = dataset.meta(0)
         check_reference_inputs(request.ablation, first.has_dynamics, first.source)
     config = tracking_config(dataset.identity.get("task", ""), request.ablation, request.history, request.kp_scale,
-                             request.sampling, request.base_position, request.rewards)
+                             request.sampling, request.base_position, request.rewards, request.noise_min)
     ppo = request.ppo()
     source = init_source(request.init_from, robot, config) if request.init_from is not None else None
     spec = RunSpec(dataset=str(Path(request.dataset).resolve()), dataset_identity=dataset.identity,
