@@ -196,7 +196,8 @@ def test_bad_setting_is_one_clear_error(tmp_path):
 
 
 def test_every_policy_of_an_experiment_trains_with_its_settings_options(tmp_path):
-    from opt2skill.experiment.runner import precision_note, train_request
+    from opt2skill.envs.config import tracking_config
+    from opt2skill.experiment.runner import train_request, training_note
 
     data = {"dataset": str(tmp_path / "data" / "to_train")}
     for mixed in (False, True):
@@ -204,7 +205,20 @@ def test_every_policy_of_an_experiment_trains_with_its_settings_options(tmp_path
         request = train_request(s, tmp_path, "to", data, "pos_f_t", 10, "opt2skill experiment table3", threads=1)
         assert request.out == tmp_path / "runs" / "to" and request.steps == s.train_steps and request.threads == 1
         assert request.ppo().mixed_precision is mixed and request.device == s.device
-        assert ("bf16" in precision_note(s)) is mixed  # the tables' notes say how the updates computed
+        assert ("bf16" in training_note(s)) is mixed  # the tables' notes say how the updates computed
+    # The base-position term and each world's noise share reach every policy's environment, and the notes.
+    for base_position, noise_min, weighted in (("task", 1.0, False), ("on", 0.0, True)):
+        s = resolve("quick", {"base_position": base_position, "noise_min": noise_min})
+        request = train_request(s, tmp_path, "ik", data, "pos", 10, "opt2skill experiment table3")
+        config = tracking_config("walk", request.ablation, request.history, request.kp_scale, request.sampling,
+                                 request.base_position, request.rewards, request.noise_min)
+        assert (config.rewards.base_pos.weight > 0) is weighted  # the walk task alone does not track it
+        assert config.observations.noise.per_world_min == noise_min
+        assert ("--base-position" in training_note(s)) is weighted and ("--noise-min" in training_note(s)) is weighted
+    with pytest.raises(ConfigError, match=r"--noise-min must be a share in \[0, 1\] .*, got 1.5"):
+        resolve("quick", {"noise_min": 1.5})
+    with pytest.raises(ConfigError, match="--base-position must be one of task, on, off, got 'yes'"):
+        resolve("quick", {"base_position": "yes"})
 
 
 def test_a_folder_of_another_experiment_or_other_files_is_refused(tmp_path):
@@ -215,7 +229,8 @@ def test_a_folder_of_another_experiment_or_other_files_is_refused(tmp_path):
     with pytest.raises(ConfigError, match="holds another experiment .*setting: 'quick' there, 'full' now"):
         claim_folder(tmp_path / "a", resolve("full"))
     older = json.loads((tmp_path / "a" / "experiment.json").read_text())
-    del older["device"], older["mixed_precision"]  # a folder made before settings existed: they count as defaults
+    del older["device"], older["mixed_precision"], older["base_position"], older["noise_min"]  # made before these
+    # settings existed: they count as their defaults there
     (tmp_path / "a" / "experiment.json").write_text(json.dumps(older))
     claim_folder(tmp_path / "a", resolve("quick"))
     with pytest.raises(ConfigError, match="mixed_precision: False there, True now"):

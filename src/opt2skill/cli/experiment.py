@@ -52,6 +52,10 @@ def table3(
     device: str = typer.Option(None, help="Training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp on a GPU)."),
     mixed_precision: bool = typer.Option(False, "--mixed-precision", help="bf16 autocast in every policy's PPO update "
                                          "(train --mixed-precision; part of the experiment's settings)."),
+    base_position: str = typer.Option(None, "--base-position", help="Every policy's base-position reward: task, on "
+                                      "or off (train --base-position; part of the experiment's settings)."),
+    noise_min: float = typer.Option(None, "--noise-min", help="Each world's least share of Table II's observation "
+                                    "noise, in [0, 1] (train --noise-min; 1, the paper, by default)."),
     workers: int = typer.Option(None, min=0, help="Generation processes, and policies trained at once on a CPU (0: every core)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
@@ -67,7 +71,8 @@ def table3(
         num_envs=num_envs, histories=tuple(int(h) for h in hist) if hist is not None else None,
         stairs=_numbers(stairs, "--stairs"), slopes=_numbers(slopes, "--slopes"), sweep_trials=sweep_trials,
         sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
-        workers=workers, device=device, mixed_precision=mixed_precision or None))
+        workers=workers, device=device, mixed_precision=mixed_precision or None, base_position=base_position,
+        noise_min=noise_min))
     terminate_as_interrupt()  # a kill checkpoints the trainings in flight; the same command resumes
     run_table3(settings, out, progress=not quiet)
 

@@ -65,18 +65,29 @@ def train_request(s: Any, out: Path, key: str, data: dict[str, Any], ablation: s
 
     return session.TrainRequest(dataset=Path(data["dataset"]), out=run_dir(out, key), steps=s.train_steps,
                                 num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=command,
-                                device=s.device, threads=threads, mixed_precision=s.mixed_precision)
+                                device=s.device, threads=threads, mixed_precision=s.mixed_precision,
+                                base_position=getattr(s, "base_position", "task"),
+                                noise_min=getattr(s, "noise_min", 1.0))
 
 
-def precision_note(s: Any) -> str:
-    """How every policy's PPO updates computed, for a table's notes, where it is not plain float32."""
-    return ", PPO updates in bf16 autocast (--mixed-precision)" if s.mixed_precision else ""
+def training_note(s: Any) -> str:
+    """What every policy's training did beyond the paper's, for a table's notes: bf16 PPO updates,
+    the base-position term, each world's own share of the observation noise ("" when none)."""
+    parts = []
+    if s.mixed_precision:
+        parts.append("PPO updates in bf16 autocast (--mixed-precision)")
+    if getattr(s, "base_position", "task") != "task":
+        parts.append(f"the base-position reward {getattr(s, 'base_position')} (--base-position)")
+    if getattr(s, "noise_min", 1.0) < 1.0:
+        parts.append(f"each world's observation noise at a share drawn in [{s.noise_min:g}, 1] of Table II's "
+                     "(--noise-min)")
+    return "".join(", " + part for part in parts)
 
 
 def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: str, history: int, command: str,
                  progress: bool, threads: int | None = None) -> dict[str, Any]:
     """A policy on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed, device,
-    mixed_precision and, where the settings have it, distill_steps), into OUT/runs/KEY; resumes from
+    mixed_precision and, where the settings have them, distill_steps, base_position and noise_min), into OUT/runs/KEY; resumes from
     the run's newest checkpoint. PPO from scratch, or after distilling the optimizer's feedback expert
     when `s.distill_steps` > 0 (rl.distill_session). `threads`: physics and torch threads (None: every core)."""
     from opt2skill.rl import distill_session, session

@@ -68,9 +68,17 @@ class ExperimentSettings(Settings):
     human: str | None = None  # folder of AMASS .npz / BVH clips; None: constructed clips
     device: str = "cpu"  # training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp), as `train --device`
     mixed_precision: bool = False  # bf16 autocast in every policy's PPO update, as `train --mixed-precision`
+    base_position: str = "task"  # every policy's base-position reward, as `train --base-position`
+    noise_min: float = 1.0  # each world's least share of Table II's observation noise, as `train --noise-min`
 
     def check(self) -> None:
         problems = []
+        from opt2skill.envs.config import BASE_POSITION
+
+        if self.base_position not in BASE_POSITION:
+            problems.append(f"--base-position must be one of {', '.join(BASE_POSITION)}, got '{self.base_position}'")
+        if not 0 <= self.noise_min <= 1:
+            problems.append(f"--noise-min must be a share in [0, 1] of Table II's observation noise, got {self.noise_min}")
         if self.n_train < 1 or self.n_test < 1:
             problems.append(f"--n-train and --n-test must be >= 1, got {self.n_train} and {self.n_test}")
         if self.train_steps < 1 or not 1 <= self.num_envs <= 4096:

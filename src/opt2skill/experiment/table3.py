@@ -31,8 +31,8 @@ from typing import Any
 
 from opt2skill.cli.console import console
 from opt2skill.experiment import sources
-from opt2skill.experiment.runner import (add_output, done, need, precision_note, publish_table, run_experiment,
-                                         train_policies_at_once, train_policy)
+from opt2skill.experiment.runner import (add_output, done, need, publish_table, run_experiment,
+                                         train_policies_at_once, train_policy, training_note)
 from opt2skill.experiment.settings import SOURCE_LABELS, SOURCES, ExperimentSettings
 from opt2skill.experiment.steps import DONE, Steps, Unavailable
 
@@ -190,7 +190,7 @@ def _data_notes(s: ExperimentSettings, steps: Steps) -> list[str]:
         notes.append("human-data: constructed walking clips (opt2skill.retarget.synthetic), not motion capture; "
                      "pass --human DIR for AMASS/BVH clips")
     notes.append(f"same pipeline for every policy: PPO from scratch, {s.train_steps:,} environment steps on {s.num_envs} "
-                 f"worlds, seed {s.seed}{precision_note(s)}; TO with the '{s.to_ablation}' inputs, IK and human with 'pos' "
+                 f"worlds, seed {s.seed}{training_note(s)}; TO with the '{s.to_ablation}' inputs, IK and human with 'pos' "
                  "(no torques or forces in kinematic records)")
     return notes
 

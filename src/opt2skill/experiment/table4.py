@@ -19,8 +19,8 @@ from typing import Any
 from opt2skill.cli.console import console
 from opt2skill.experiment import force_sets
 from opt2skill.experiment.force_sets import level_key
-from opt2skill.experiment.runner import (add_output, done, need, precision_note, publish_table, run_experiment,
-                                         train_policies_at_once, train_policy)
+from opt2skill.experiment.runner import (add_output, done, need, publish_table, run_experiment,
+                                         train_policies_at_once, train_policy, training_note)
 from opt2skill.experiment.steps import Steps
 from opt2skill.experiment.table4_settings import ABLATION_LABELS, BEST, Table4Settings
 
@@ -150,7 +150,7 @@ def _data_notes(s: Table4Settings, steps: Steps) -> list[str]:
     first = (f"{s.distill_steps:,} environment steps distilling the optimizer's feedback expert, then PPO for"
              if s.distill_steps else "PPO from scratch for")
     notes.append(f"same pipeline for every policy on the training set: {first} {s.train_steps:,} environment "
-                 f"steps on {s.num_envs} worlds, seed {s.seed}, history {s.history}{precision_note(s)}; only the "
+                 f"steps on {s.num_envs} worlds, seed {s.seed}, history {s.history}{training_note(s)}; only the "
                  f"reference force / torque observations and rewards differ; {timing}")
     return notes
 
