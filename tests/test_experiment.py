@@ -266,6 +266,19 @@ def test_table_pairs_to_and_ik_by_index_and_tests_human_unpaired():
     assert "smoke result" in md and "not available: no training references" in md and "*paper: IK-data*" in md
     assert "| 100% of 8 | 1.01 |" in md and table.to_dict()["data"][0]["pace"]["n"] == 8  # the signed drift
     assert [r.report for r in table.history_rows] == [to, None]
+    # Each test says which way it goes and whether TO is at or below the baseline on the claim metrics.
+    assert paired["shift"]["E_ee_foot"] == pytest.approx(-1.0, abs=0.02) and paired["claim"]["met"]
+    assert paired["claim"]["lower"] == ["E_ee_foot"] and paired["claim"]["higher"] == []
+    assert unpaired["shift"]["E_ee_foot"] == pytest.approx(5.35 - 11.0) and unpaired["claim"]["met"]
+    assert "| 0.016 lower |" in md and "TO at or below IK-data on E_ee-hand, E_ee-foot, E_pos-x" in md
+    assert "): **met**; lower on E_ee-foot (0.016)." in md
+    better_ik = _report("ik", {i: 4.0 + 0.1 * i + 0.01 * (i % 3) for i in range(8)})
+    worse = compare_reports(to, better_ik, paired=True)
+    assert not worse["claim"]["met"] and worse["claim"]["higher"] == ["E_ee_foot"]
+    md = build_table("quick", {"to": to, "ik": better_ik, "human": human}, {}, (10,), 10).markdown()
+    assert "**not met**: higher on E_ee-foot (0.0078)" in md and "| 0.0078 higher |" in md
+    assert json.loads(json.dumps(build_table("quick", {"to": to, "ik": ik, "human": None}, {}, (10,), 10)
+                                 .to_dict()))["tests"]["TO vs IK-data"]["claim"]["met"] is True
 
 
 def test_a_human_folder_is_split_into_training_and_held_out_clips(tmp_path):

@@ -73,3 +73,28 @@ def rank_sum(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, floa
         x, y = x[np.isfinite(x)], y[np.isfinite(y)]
         p_values[name] = float(mannwhitneyu(x, y).pvalue) if len(x) > 1 and len(y) > 1 else float("nan")
     return p_values
+
+
+def paired_shift(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, float]:
+    """Per metric, the median of the paired differences a - b (the signed-rank test's direction);
+    NaN where no pair is defined."""
+    if len(a) != len(b):
+        raise ValueError(f"paired comparison needs the same references: {len(a)} against {len(b)} rollouts")
+    out = {}
+    for name in METRICS:
+        d = np.array([getattr(x, name) for x in a], dtype=float) - np.array([getattr(y, name) for y in b], dtype=float)
+        d = d[np.isfinite(d)]
+        out[name] = float(np.median(d)) if len(d) else float("nan")
+    return out
+
+
+def median_shift(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, float]:
+    """Per metric, median(a) - median(b) over the defined values (the rank-sum test's direction);
+    NaN where either side has none."""
+    out = {}
+    for name in METRICS:
+        x = np.array([getattr(e, name) for e in a], dtype=float)
+        y = np.array([getattr(e, name) for e in b], dtype=float)
+        x, y = x[np.isfinite(x)], y[np.isfinite(y)]
+        out[name] = float(np.median(x) - np.median(y)) if len(x) and len(y) else float("nan")
+    return out

@@ -4,7 +4,9 @@ references, the paper's row beside it, and p-values of TO against each baseline.
 Tests: TO and IK references of the same seed and index share their parameters (speed, clearance,
 step timing), so their rollouts are paired by generation index and compared with the two-sided
 Wilcoxon signed-rank test, as the paper does. Human references are other motions, with nothing to
-pair them by: TO against human uses the two-sided Wilcoxon rank-sum (Mann-Whitney U) test.
+pair them by: TO against human uses the two-sided Wilcoxon rank-sum (Mann-Whitney U) test. Each test
+carries its direction (the median paired difference, or the difference of medians), and the table
+says for each baseline whether TO is at or below it on the paper's claim metrics (`CLAIM`).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from typing import Any
 
 from opt2skill.data.atomic import write_report_files
 from opt2skill.eval.report import TABLE_III, EvalReport, header, label, mean_se
-from opt2skill.eval.stats import paired_wilcoxon, rank_sum
+from opt2skill.eval.stats import median_shift, paired_shift, paired_wilcoxon, rank_sum
 from opt2skill.experiment import paper
 from opt2skill.experiment.settings import SOURCE_LABELS
 
@@ -33,6 +35,11 @@ class Row:
 # randomization stated) and the one the policies trained under.
 NOMINAL = "no randomization or observation noise"
 TABLE_II = "Table II's randomization and observation noise at full strength, as in training"
+
+# The paper's claim (Sec. IV-B) and issue 17's target: TO at or below each baseline on the end
+# effectors and the drift. "Below" and "above" are two-sided p < ALPHA in the shift's direction.
+CLAIM = ("E_ee_hand", "E_ee_foot", "E_pos_x", "E_pos_y", "E_yaw")
+ALPHA = 0.05
 
 
 @dataclass
@@ -84,8 +91,10 @@ class Table3:
             lines += ["p-values of TO against each baseline ('-' where undefined):", "",
                       "| " + " | ".join(p_head) + " |", "|" + "|".join(" --- " for _ in p_head) + "|"]
             for pair, t in self.p_values.items():
-                lines.append("| " + " | ".join([pair, t["test"], t["n"], *(_p(t["p"][m]) for m in TABLE_III)]) + " |")
-            lines += ["", f"The paper: {paper.PAPER_WILCOXON}.", ""]
+                lines.append("| " + " | ".join([pair, t["test"], t["n"], *(_p_cell(t, m) for m in TABLE_III)]) + " |")
+            lines += ["", f"'lower' / 'higher': TO's errors, where p < {ALPHA:g} (the median paired difference, or "
+                      f"the difference of medians, gives the direction). The paper: {paper.PAPER_WILCOXON}.", ""]
+            lines += [_claim_line(pair, t) for pair, t in self.p_values.items()] + [""]
         lines += [f"- {note}" for note in self.notes]
         return "\n".join(lines) + "\n"
 
@@ -105,6 +114,34 @@ def _cells(r: Row) -> list[str]:
 
 def _p(p: float) -> str:
     return "-" if p != p else (f"{p:.2g}" if p >= 1e-3 else "<0.001")
+
+
+def _direction(test: dict[str, Any], metric: str) -> str:
+    """"lower" or "higher" (TO's error against the baseline's, where the test finds a difference), else ""."""
+    p, shift = test["p"][metric], test.get("shift", {}).get(metric, float("nan"))
+    if not p < ALPHA or not shift == shift or shift == 0:
+        return ""
+    return "lower" if shift < 0 else "higher"
+
+
+def _p_cell(test: dict[str, Any], metric: str) -> str:
+    direction = _direction(test, metric)
+    return _p(test["p"][metric]) + (f" {direction}" if direction else "")
+
+
+def claim(test: dict[str, Any]) -> dict[str, Any]:
+    """Whether TO is at or below the baseline on every `CLAIM` metric: none significantly higher."""
+    by = {d: [m for m in CLAIM if _direction(test, m) == d] for d in ("lower", "higher")}
+    return {"metrics": list(CLAIM), "alpha": ALPHA, "met": not by["higher"], **by}
+
+
+def _claim_line(pair: str, test: dict[str, Any]) -> str:
+    c, names = claim(test), lambda ms: ", ".join(f"{label(m)} ({_p(test['p'][m])})" for m in ms)
+    baseline = pair.split(" vs ", 1)[-1]
+    verdict = "**met**" if c["met"] else f"**not met**: higher on {names(c['higher'])}"
+    lower = f"; lower on {names(c['lower'])}" if c["lower"] else ""
+    return (f"- TO at or below {baseline} on {', '.join(label(m) for m in CLAIM)} (the paper's claim; none higher at "
+            f"p < {ALPHA:g}): {verdict}{lower}.")
 
 
 def build_table(setting: str, reports: dict[str, EvalReport | None], missing: dict[str, str],
@@ -129,11 +166,18 @@ def build_table(setting: str, reports: dict[str, EvalReport | None], missing: di
 
 def compare_reports(a: EvalReport, b: EvalReport, paired: bool) -> dict[str, Any]:
     """p-values of a against b: paired by generation index (the references share their parameters),
-    else unpaired."""
+    else unpaired; each metric's shift (a's median paired difference from b, or the difference of
+    medians) and the verdict on `CLAIM`."""
     if paired:
         by_index = {r.index: r for r in b.results}
         pairs = [(r, by_index[r.index]) for r in a.results if r.index in by_index]
-        p = paired_wilcoxon([x.errors for x, _ in pairs], [y.errors for _, y in pairs])
-        return {"test": "Wilcoxon signed-rank, paired by generation index", "n": f"{len(pairs)} pair{'' if len(pairs) == 1 else 's'}", "p": p}
-    p = rank_sum([r.errors for r in a.results], [r.errors for r in b.results])
-    return {"test": "Wilcoxon rank-sum (Mann-Whitney U), unpaired", "n": f"{len(a.results)} vs {len(b.results)}", "p": p}
+        x, y = [x.errors for x, _ in pairs], [y.errors for _, y in pairs]
+        test = {"test": "Wilcoxon signed-rank, paired by generation index",
+                "n": f"{len(pairs)} pair{'' if len(pairs) == 1 else 's'}", "p": paired_wilcoxon(x, y),
+                "shift": paired_shift(x, y)}
+    else:
+        x, y = [r.errors for r in a.results], [r.errors for r in b.results]
+        test = {"test": "Wilcoxon rank-sum (Mann-Whitney U), unpaired", "n": f"{len(a.results)} vs {len(b.results)}",
+                "p": rank_sum(x, y), "shift": median_shift(x, y)}
+    test["claim"] = claim(test)
+    return test
