@@ -172,10 +172,12 @@ def test_table_iv_cells_are_mean_and_sd_per_level_and_pooled_and_tests_pair_by_l
     test = table.tests["Pos+F+T vs Pos"]
     assert test["pairs"] == 5 and test["p"]["force_error"] == pytest.approx(2 / 2**5)  # five pairs, one sign
     assert np.isnan(test["p"]["right_hand_error"])  # every difference zero
+    assert test["shift"]["force_error"] == pytest.approx(-5.0)  # median of -1, -1, -8, -7.5, -5: Pos+F+T lower
     assert table.falls == {"pos": "1 of 6", "pos_f": "0 of 0", "pos_f_t": "0 of 5"}
     assert np.isnan(table.tests["Pos+F+T vs Pos+F"]["p"]["force_error"]) and table.tests["Pos+F+T vs Pos+F"]["pairs"] == 0
     md = table.markdown()
     assert "smoke result" in md and "| Pos+F+T | 0.20 ± 0.14 | 2.00 ± 1.00 |" in md
+    assert "| Pos+F+T vs Pos | 5 | 0.062 | - |" in md  # 5 pairs of one sign: p = 1/16, no direction at 0.05
     assert "| *paper: Pos* | *1.2 ± 2.1* | *8.7 ± 2.2* | *11.7 ± 8.3* |" in md
     assert "| Pos+F | - | - | - | 0 of 0 |" in md and "not available ('-' above): Pos+F at 0 N: no trained policy" in md
 

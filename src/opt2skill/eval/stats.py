@@ -75,17 +75,28 @@ def rank_sum(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, floa
     return p_values
 
 
+def paired_difference(x, y) -> float:
+    """Median of the paired differences x[i] - y[i] over the pairs both define (NaN: none): the
+    direction of the signed-rank test of x against y."""
+    d = np.asarray(x, dtype=float) - np.asarray(y, dtype=float)
+    d = d[np.isfinite(d)]
+    return float(np.median(d)) if len(d) else float("nan")
+
+
 def paired_shift(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, float]:
     """Per metric, the median of the paired differences a - b (the signed-rank test's direction);
     NaN where no pair is defined."""
     if len(a) != len(b):
         raise ValueError(f"paired comparison needs the same references: {len(a)} against {len(b)} rollouts")
-    out = {}
-    for name in METRICS:
-        d = np.array([getattr(x, name) for x in a], dtype=float) - np.array([getattr(y, name) for y in b], dtype=float)
-        d = d[np.isfinite(d)]
-        out[name] = float(np.median(d)) if len(d) else float("nan")
-    return out
+    return {name: paired_difference([getattr(x, name) for x in a], [getattr(y, name) for y in b]) for name in METRICS}
+
+
+def direction(p: float, shift: float, alpha: float = 0.05) -> str:
+    """"lower" or "higher" (the first side's values against the second's) where the test finds a
+    difference (p < alpha) and the shift has a sign, else ""."""
+    if not p < alpha or not shift == shift or shift == 0:
+        return ""
+    return "lower" if shift < 0 else "higher"
 
 
 def median_shift(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, float]:

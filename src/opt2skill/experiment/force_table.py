@@ -18,7 +18,7 @@ import numpy as np
 
 from opt2skill.data.atomic import write_report_files
 from opt2skill.eval.report import EvalReport
-from opt2skill.eval.stats import mean_sd, signed_rank
+from opt2skill.eval.stats import direction, mean_sd, paired_difference, signed_rank
 from opt2skill.experiment import paper
 from opt2skill.experiment.table4_settings import ABLATION_LABELS, BEST
 
@@ -77,8 +77,9 @@ class Table4:
                       "| comparison | pairs | " + " | ".join(title.lower() for title, _, _ in METRICS.values()) + " |",
                       "| --- | --- |" + " --- |" * len(METRICS)]
             for pair, t in self.tests.items():
-                lines.append(f"| {pair} | {t['pairs']} | " + " | ".join(_p(t["p"].get(m, np.nan)) for m in METRICS) + " |")
-            lines += ["", f"The paper: {paper.TABLE_IV_TESTS}.", ""]
+                lines.append(f"| {pair} | {t['pairs']} | " + " | ".join(_p_cell(t, m) for m in METRICS) + " |")
+            lines += ["", f"'lower' / 'higher': {best}'s errors, where p < 0.05 (the median paired difference gives "
+                      f"the direction). The paper: {paper.TABLE_IV_TESTS}.", ""]
         if self.transfer:
             ref = self.transfer[0]
             lines += [f"## Desk-height transfer ({ABLATION_LABELS[BEST]})", "",
@@ -132,6 +133,12 @@ def _p(p: float) -> str:
     return "-" if p != p else (f"{p:.2g}" if p >= 1e-3 else "<0.001")
 
 
+def _p_cell(test: dict[str, Any], metric: str) -> str:
+    p = test["p"].get(metric, np.nan)
+    way = direction(p, test.get("shift", {}).get(metric, np.nan))
+    return _p(p) + (f" {way}" if way else "")
+
+
 def _values(report: EvalReport, metric: str) -> dict[int, float]:
     return {r.index: r.task_metrics[metric][0] for r in report.results if metric in r.task_metrics}
 
@@ -160,8 +167,9 @@ def build_table(setting: str, forces: tuple[float, ...], ablations: tuple[str, .
 
 
 def compare(reports: dict[tuple[str, float], EvalReport], forces: tuple[float, ...], a: str, b: str) -> dict[str, Any]:
-    """Signed-rank p-values of ablation a against b, paired by (level, generation index)."""
-    p, pairs = {}, 0
+    """Signed-rank p-values of ablation a against b, paired by (level, generation index), and the
+    median paired difference a - b of each metric (the direction)."""
+    p, shift, pairs = {}, {}, 0
     for metric in METRICS:
         x, y = [], []
         for f in forces:
@@ -170,9 +178,10 @@ def compare(reports: dict[tuple[str, float], EvalReport], forces: tuple[float, .
                 common = sorted(set(va) & set(vb))
                 x += [va[i] for i in common]
                 y += [vb[i] for i in common]
-        p[metric] = signed_rank(x, y)
+        p[metric], shift[metric] = signed_rank(x, y), paired_difference(x, y)
         pairs = len(x)
-    return {"test": "Wilcoxon signed-rank, two-sided, paired by force level and generation index", "pairs": pairs, "p": p}
+    return {"test": "Wilcoxon signed-rank, two-sided, paired by force level and generation index", "pairs": pairs, "p": p,
+            "shift": shift}
 
 
 def _summary(values: list[float]) -> dict[str, Any]:

@@ -17,7 +17,7 @@ from typing import Any
 
 from opt2skill.data.atomic import write_report_files
 from opt2skill.eval.report import TABLE_III, EvalReport, header, label, mean_se
-from opt2skill.eval.stats import median_shift, paired_shift, paired_wilcoxon, rank_sum
+from opt2skill.eval.stats import direction, median_shift, paired_shift, paired_wilcoxon, rank_sum
 from opt2skill.experiment import paper
 from opt2skill.experiment.settings import SOURCE_LABELS
 
@@ -118,10 +118,7 @@ def _p(p: float) -> str:
 
 def _direction(test: dict[str, Any], metric: str) -> str:
     """"lower" or "higher" (TO's error against the baseline's, where the test finds a difference), else ""."""
-    p, shift = test["p"][metric], test.get("shift", {}).get(metric, float("nan"))
-    if not p < ALPHA or not shift == shift or shift == 0:
-        return ""
-    return "lower" if shift < 0 else "higher"
+    return direction(test["p"][metric], test.get("shift", {}).get(metric, float("nan")), ALPHA)
 
 
 def _p_cell(test: dict[str, Any], metric: str) -> str:
