@@ -68,6 +68,10 @@ def test_compare_two_runs_on_the_same_references(run_and_data, tmp_path):
     assert all(p is None or 0 < p <= 1 for p in pair.values()) and any(p is not None for p in pair.values())
     md = (out / "compare.md").read_text()
     assert "Wilcoxon signed-rank p-values" in md and "Opt2Skill (paper, Table III)" in md
+    # Each test's direction: the median of the second run's errors minus the first's, reference by reference.
+    [shift] = cmp["median_paired_difference"].values()
+    joint = [[t["E_joint"] for t in r["trajectories"]] for r in runs]
+    assert shift["E_joint"] == pytest.approx(float(np.median(np.subtract(joint[1], joint[0]))))
     # A second comparison reuses each run's evaluation of the same references.
     cached = older / "eval" / "squat3-given" / "eval.json"
     stamp = json.loads(cached.read_text())["created"]

@@ -5,7 +5,7 @@ compares datasets). The references are held out from every run unless asked othe
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +16,7 @@ from opt2skill.folder_lock import folder_lock
 from opt2skill.eval.evaluate import EvalRequest, evaluate, load_run_policy, training_fingerprints
 from opt2skill.eval.references import ReferenceSet, check_metric_fields, select_references
 from opt2skill.eval.report import PAPER_ROWS, TABLE_III, TABLE_IV, EvalReport, header, label, mean_se
-from opt2skill.eval.stats import paired_wilcoxon
+from opt2skill.eval.stats import direction, paired_shift, paired_wilcoxon
 
 
 @dataclass
@@ -24,6 +24,7 @@ class Comparison:
     references: ReferenceSet
     reports: list[EvalReport]
     p_values: dict[str, dict[str, float]]  # "B vs A" -> metric -> p
+    shifts: dict[str, dict[str, float]] = field(default_factory=dict)  # "B vs A" -> metric -> median of B - A
 
     def names(self) -> list[str]:
         return [r.title() for r in self.reports]
@@ -31,6 +32,7 @@ class Comparison:
     def to_dict(self) -> dict[str, Any]:
         return {"format": "opt2skill-compare", "format_version": 1, "references": self.references.to_dict(),
                 "runs": [r.to_dict() for r in self.reports], "wilcoxon_p": self.p_values,
+                "median_paired_difference": self.shifts,
                 "test": "two-sided Wilcoxon signed-rank, paired by reference, each run against the first"}
 
     def rows(self) -> list[list[str]]:
@@ -42,14 +44,20 @@ class Comparison:
         return rows
 
     def p_rows(self) -> list[list[str]]:
-        return [[pair, *(_p(p[m]) for m in (*TABLE_III, *TABLE_IV)), ""] for pair, p in self.p_values.items()]
+        def cell(pair: str, m: str) -> str:
+            p = self.p_values[pair][m]
+            way = direction(p, self.shifts.get(pair, {}).get(m, float("nan")))
+            return _p(p) + (f" {way}" if way else "")
+
+        return [[pair, *(cell(pair, m) for m in (*TABLE_III, *TABLE_IV)), ""] for pair in self.p_values]
 
     def markdown(self) -> str:
         head = ["run", *(header(m) for m in (*TABLE_III, *TABLE_IV)), "success"]
         lines = ["# Comparison (mean ± SE over the same references)", "", f"- references: {self.references.note}", ""]
         lines += ["| " + " | ".join(head) + " |", "|" + "|".join(" --- " for _ in head) + "|"]
         lines += ["| " + " | ".join(r) + " |" for r in self.rows()]
-        lines += ["", "Wilcoxon signed-rank p-values (two-sided, paired by reference; '-' where undefined):", ""]
+        lines += ["", "Wilcoxon signed-rank p-values (two-sided, paired by reference; '-' where undefined; 'lower' / "
+                  "'higher': the first-named run's errors, where p < 0.05, by the median paired difference):", ""]
         p_head = ["pair", *(label(m) for m in (*TABLE_III, *TABLE_IV)), ""]
         lines += ["| " + " | ".join(p_head) + " |", "|" + "|".join(" --- " for _ in p_head) + "|"]
         lines += ["| " + " | ".join(r) + " |" for r in self.p_rows()]
@@ -92,11 +100,12 @@ def compare(runs: list[Path], dataset: Path | None = None, n: int = 20, split: s
             _cache(report, cache.parent)
         reports.append(report)
     first = reports[0]
-    p_values = {f"{r.title()} vs {first.title()}": paired_wilcoxon([x.errors for x in r.results],
-                                                                 [x.errors for x in first.results])
-                for r in reports[1:]}
+    pairs = {f"{r.title()} vs {first.title()}": ([x.errors for x in r.results], [x.errors for x in first.results])
+             for r in reports[1:]}
+    p_values = {pair: paired_wilcoxon(a, b) for pair, (a, b) in pairs.items()}
+    shifts = {pair: paired_shift(a, b) for pair, (a, b) in pairs.items()}
     refs = dataclasses.replace(refs, split="held-out from every run" if split == "held-out" and not indices else refs.split)
-    return Comparison(refs, reports, p_values)
+    return Comparison(refs, reports, p_values, shifts)
 
 
 def _cache(report, folder: Path) -> None:
