@@ -26,6 +26,9 @@ machine whose speed drifts, only such interleaved runs compare (docs/trajopt.md,
 solver's own levers"):
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --against solver.reg_increase_below=0.2
+
+`--against-python-replay` solves each walk once and validates it with the compiled feedback replay
+and with the Python one, in alternating order.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from opt2skill.data import replay  # noqa: E402
 from opt2skill.data.validate import ValidationConfig, validate  # noqa: E402
 from opt2skill.errors import SolverError  # noqa: E402
 from opt2skill.model import load_robot  # noqa: E402
@@ -110,10 +114,17 @@ class Tally:
         except SolverError as exc:
             self.reasons["solver_failed"] += 1
             print(f"{index:3d} {label} FAILED ({time.perf_counter() - start:.1f} s): {exc}  [{params_text(params)}]", flush=True)
-            return
+            return None
         solved, solved_cpu = time.perf_counter() - start, time.process_time() - start_cpu
+        self.check(robot, task, config, index, params, label, traj, solved, solved_cpu)
+        return traj, solved, solved_cpu
+
+    def check(self, robot, task, config, index: int, params: dict, label: str, traj, solved: float,
+              solved_cpu: float) -> None:
+        """Validate a solved walk and record both times."""
+        start, start_cpu = time.perf_counter(), time.process_time()
         result = validate(robot, traj, config, task.task_errors(traj))
-        checked, checked_cpu = time.perf_counter() - start - solved, time.process_time() - start_cpu - solved_cpu
+        checked, checked_cpu = time.perf_counter() - start, time.process_time() - start_cpu
         self.solve.append(solved)
         self.valid.append(checked)
         self.total.append(solved + checked)
@@ -145,8 +156,9 @@ class Tally:
 
 @contextlib.contextmanager
 def uncompiled(*modules):
-    """Problems built inside use the Python or Crocoddyl version of the compiled parts that these
-    modules would build (`integrator`: the matched integrator, `costs`: the barrier costs)."""
+    """Problems built (and walks validated) inside use the Python or Crocoddyl version of the compiled
+    parts that these modules would use (`integrator`: the matched integrator, `costs`: the barrier
+    costs, `replay`: the feedback replay's loop)."""
     originals = [(module, module.load_native) for module in modules]
     for module, _ in originals:
         module.load_native = lambda: None
@@ -166,14 +178,18 @@ def main() -> None:
                         help="solve each walk with the compiled and with the Python matched integrator, in alternating order")
     parser.add_argument("--against-crocoddyl-barriers", action="store_true",
                         help="solve each walk with the compiled barrier cost and with Crocoddyl's, in alternating order")
+    parser.add_argument("--against-python-replay", action="store_true",
+                        help="validate each solved walk with the compiled feedback replay and with the Python one, "
+                             "in alternating order (the solve once)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a walk config override (dotted key, number or true/false), repeatable")
     parser.add_argument("--against", action="append", default=[], metavar="KEY=VALUE",
                         help="solve each walk also with this override (repeatable), in alternating order")
     args = parser.parse_args()
-    if sum(map(bool, (args.against, args.against_python, args.against_crocoddyl_barriers))) > 1:
-        parser.error("--against, --against-python and --against-crocoddyl-barriers compare one thing at a time: "
-                     "give one of them")
+    if sum(map(bool, (args.against, args.against_python, args.against_crocoddyl_barriers,
+                      args.against_python_replay))) > 1:
+        parser.error("--against, --against-python, --against-crocoddyl-barriers and --against-python-replay compare "
+                     "one thing at a time: give one of them")
 
     robot = load_robot("digit")
     overrides = dict(_override(item) for item in args.set)
@@ -184,7 +200,8 @@ def main() -> None:
           f"{os.cpu_count()} CPUs, OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS')}, {time.strftime('%Y-%m-%d %H:%M')}, "
           f"load average {_load()}" + (f", overrides {overrides}" if overrides else ""))
     for flag, asked in (("--against-python", args.against_python),
-                        ("--against-crocoddyl-barriers", args.against_crocoddyl_barriers)):
+                        ("--against-crocoddyl-barriers", args.against_crocoddyl_barriers),
+                        ("--against-python-replay", args.against_python_replay)):
         if asked and native.load() is None:
             parser.error(f"{flag} needs the compiled parts: {native.unavailable_reason()}")
     print(f"compiled parts (matched integrator, barrier costs): "
@@ -200,9 +217,19 @@ def main() -> None:
         variants = [("default", task, ()),
                     ("against", get_task("walk", robot, {**GAINS, **overrides, **against}), ())]
         print(f"against: {against}")
+    if args.against_python_replay:
+        variants = [("compiled replay", task, ()), ("python replay", task, (replay,))]
     tallies = {label: Tally() for label, _, _ in variants}
     for index in range(args.n):
         params = space.sample(args.seed, index)
+        if args.against_python_replay:  # one solve, validated both ways
+            (first, _, left_first), (second, _, left_second) = variants if index % 2 == 0 else variants[::-1]
+            with uncompiled(*left_first):
+                solved = tallies[first].walk(robot, task, config, index, params, args.seed, first)
+            if solved is not None:
+                with uncompiled(*left_second):
+                    tallies[second].check(robot, task, config, index, params, second, *solved)
+            continue
         order = variants if index % 2 == 0 else variants[::-1]  # neither always runs first
         for label, solver_task, left_out in order:
             with uncompiled(*left_out):

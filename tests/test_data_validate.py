@@ -162,7 +162,35 @@ def test_feedback_replay_is_bitwise_its_plain_law(robot):
     qvel[0, 8] += 1.0
     pushed = replace(traj, qvel=qvel)
     for record in (traj, pushed):
-        fast, _ = Replayer(robot, record, CONFIG.replay).feedback_states()
+        fast, _ = Replayer(robot, record, CONFIG.replay, use_compiled=False).feedback_states()
         plain = _feedback_plain(Replayer(robot, record, CONFIG.replay))
         assert fast.shape == plain.shape
         assert np.array_equal(fast, plain)
+
+
+def test_the_compiled_feedback_replay_follows_the_python_loop(robot):
+    """The C++ loop (trajopt/native/feedback_replay.hpp) takes the Python loop's states to round-off,
+    with the servos' PD or without, and stops at the same step when the robot falls."""
+    from opt2skill.data.replay import Replayer
+
+    task = get_task("squat", robot, {"solver.keep_gains": True})
+    traj = task.solve({"depth": 0.1}, 0)
+    if not Replayer(robot, traj, CONFIG.replay).compiled:
+        pytest.skip("the compiled module is not built here (no C++ compiler)")
+    qvel = traj.qvel.copy()
+    qvel[0, :3] += [0.2, -0.1, 0.05]
+    pushed = replace(traj, qvel=qvel)
+    qvel = traj.qvel.copy()
+    qvel[0, :3] += [3.0, 0.0, 0.0]  # 3 m/s sideways at the start: the feedback cannot hold it
+    falling = replace(traj, qvel=qvel)
+    for record, pd in ((traj, True), (pushed, True), (pushed, False), (falling, True)):
+        settings = replace(CONFIG.replay, feedback_pd=pd)
+        qpos, sensors, props = Replayer(robot, record, settings).feedback_states(props=True)
+        ref_qpos, ref_sensors, ref_props = Replayer(robot, record, settings, use_compiled=False).feedback_states(
+            props=True)
+        assert qpos.shape == ref_qpos.shape and props.shape == ref_props.shape
+        np.testing.assert_allclose(qpos, ref_qpos, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(sensors, ref_sensors, rtol=1e-7, atol=1e-6)
+        assert not np.array_equal(qpos[-1], record.qpos[-1])  # it moved
+    fell, _ = Replayer(robot, falling, CONFIG.replay).feedback_states()
+    assert len(fell) < len(Replayer(robot, traj, CONFIG.replay).feedback_states()[0])  # the fall stops it early

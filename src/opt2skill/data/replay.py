@@ -31,6 +31,7 @@ from opt2skill.model.robot import Robot
 from opt2skill.model.sensors import SensorLayout
 from opt2skill.scene.build import build_model
 from opt2skill.scene.props import Door
+from opt2skill.trajopt.native import load as load_native
 
 
 @dataclass(frozen=True)
@@ -79,8 +80,12 @@ def _interp_quat(quat: np.ndarray, frac: np.ndarray) -> np.ndarray:
 class Replayer:
     """Replays one trajectory on one robot (single-threaded: one per validation worker)."""
 
-    def __init__(self, robot: Robot, traj: Trajectory, settings: ReplaySettings = ReplaySettings()):
+    def __init__(self, robot: Robot, traj: Trajectory, settings: ReplaySettings = ReplaySettings(),
+                 use_compiled: bool = True):
         self.robot, self.traj, self.settings = robot, traj, settings
+        # The feedback loop in C++ where the compiled module loads (the same states to round-off, so
+        # not a setting: datasets' identities hold the settings).
+        self.use_compiled = use_compiled
         self.model = build_model(robot, traj.scene)
         self.data = mujoco.MjData(self.model)
         self.nq, self.nv = robot.nq, robot.nv  # the robot's part of the scene's qpos and qvel
@@ -221,8 +226,11 @@ class Replayer:
         prop_qpos = np.empty((nstep, m.nq - self.nq)) if props else None
         sensors = np.empty((nstep, m.nsensordata))
         kp, kd = cfg.kp, cfg.kd
+        if self.compiled:
+            nstep = self._compiled_loop(ref, qpos, sensors, prop_qpos)
+            return (qpos[:nstep], sensors[:nstep]) + ((prop_qpos[:nstep],) if props else ())
         # The loop below is the law of the docstring, written for speed (it is most of a walk's
-        # validation): views of MjData taken once, the state conversions (`qpos_mj_to_pin`,
+        # validation), for machines without the compiled loop above: views of MjData taken once, the state conversions (`qpos_mj_to_pin`,
         # `qvel_mj_to_pin`) inlined on preallocated arrays with the rotation in Python floats, the
         # state-independent products computed for all steps at once. Every operation is the one
         # the conversions do, in the same order, so the controls are bitwise those of the plain
@@ -269,6 +277,50 @@ class Replayer:
         if props:
             return qpos[:nstep], sensors[:nstep], prop_qpos[:nstep]
         return qpos[:nstep], sensors[:nstep]
+
+    def _compiled_loop(self, ref: dict[str, np.ndarray], qpos: np.ndarray, sensors: np.ndarray,
+                       prop_qpos: np.ndarray | None) -> int:
+        """The loop of `feedback_states` in C++ (trajopt/native/feedback_replay.hpp), from MjData's
+        state into the given arrays; the steps taken. Its arrays are checked here: it reads them by
+        address."""
+        cfg, nu, pd = self.robot.config, self.nv - 6, self.settings.feedback_pd
+        nstep = len(ref["qpos_ref"])
+        arrays = {
+            "qpos_ref": (ref["qpos_ref"], (nstep, self.nq)), "q_ref": (ref["q_ref"], (nstep, self.nq)),
+            "v_ref": (ref["v_ref"], (nstep, self.nv)), "tau_ref": (ref["tau_ref"], (nstep, nu)),
+            "node": (ref["node"].astype(np.int64), (nstep,)),
+            "gains": (ref["gains"], (len(ref["gains"]), nu, 2 * self.nv)),
+            "target_ref": (ref["qpos_ref"][:, 7:], (nstep, nu)),
+            "kp": (cfg.kp, (nu,)), "kd": (cfg.kd, (nu,)), "damping": (self.damping, (nu,)),
+            "frictionloss": (self.frictionloss, (nu,)), "qpos": (qpos, qpos.shape), "sensors": (sensors, sensors.shape),
+        }
+        if pd:
+            arrays["kd_v_ref"] = (cfg.kd * ref["v_ref"][:, 6:], (nstep, nu))
+        if prop_qpos is not None:
+            arrays["props"] = (prop_qpos, prop_qpos.shape)
+        if ref["node"].min() < 0 or ref["node"].max() >= len(ref["gains"]):
+            raise ValueError("a physics step's solver node has no gains")
+        keep, pointers = [], {}
+        for key, (array, shape) in arrays.items():
+            if key in ("qpos", "sensors", "props"):  # written in place
+                a = array
+                ok = a.flags.c_contiguous and a.flags.writeable and a.dtype == np.float64
+            else:
+                a = np.ascontiguousarray(array, dtype=np.int64 if key == "node" else np.float64)
+                ok = True
+            if not ok or a.shape != shape:
+                raise ValueError(f"feedback replay: {key} must be a contiguous {shape} array, got {a.shape}")
+            keep.append(a)  # alive until the call returns
+            pointers[key] = a.ctypes.data
+        return load_native().feedback_replay(
+            self.model._address, self.data._address, self.robot.pin_model, pointers, nstep, pd,
+            self.settings.joint_losses, self.settings.friction_smoothing, self.settings.fall_height,
+            self.settings.fall_angle)
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the feedback replay runs in C++: the compiled module loads, and this replayer may use it."""
+        return self.use_compiled and load_native() is not None
 
     def _fallen(self, qpos_ref: np.ndarray, qpos: np.ndarray) -> bool:
         s = self.settings

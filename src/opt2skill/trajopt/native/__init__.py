@@ -1,24 +1,30 @@
-"""Compiled parts of the optimizer: built once against the installed Crocoddyl, loaded if they build.
+"""Compiled parts of the optimizer and its validation: built once against the installed Crocoddyl
+and MuJoCo, loaded if they build.
 
-One module (`module.cpp`) with two Crocoddyl C++ classes:
+One module (`module.cpp`) with two Crocoddyl C++ classes and one function:
 - `MatchedEulerModel` (`matched_euler.hpp`), the matched integrator (`trajopt.integrator`) as an
   action model: the same step and derivatives, without Python in a node's `calc` and `calcDiff`
   (30 % and about 20 % of their time), and with datas that Crocoddyl's problems accept (the
   receding windows then reuse each node's data instead of allocating one per window);
 - `BarrierCostModel` (`barrier_cost.hpp`), Crocoddyl's residual cost with its derivatives skipped
   where the activation is flat: a barrier inside its bounds (a wrench inside its cone, joints inside
-  their limits) costs no residual derivatives and no products of zeros (`trajopt.costs`).
+  their limits) costs no residual derivatives and no products of zeros (`trajopt.costs`);
+- `feedback_replay` (`feedback_replay.hpp`), the validation's 1-kHz replay under the optimizer's
+  feedback law (`data.replay.Replayer.feedback_states`) as one loop around MuJoCo's `mj_step`,
+  reaching the model and data through the Python objects' addresses: the Python loop spent about as
+  long around the physics as in it.
 
 It is compiled on first use with the C++ compiler of the machine (`$CXX`, else `c++`) against the
-headers that the pinned wheels ship (crocoddyl, pinocchio, boost; Eigen from `cmeel-eigen`), into
+headers that the pinned wheels ship (crocoddyl, pinocchio, boost, mujoco; Eigen from `cmeel-eigen`), into
 `<cache>/native/<key>/` (the temporary folder's `opt2skill-<uid>/` where the cache is not
 writable), where the key hashes the sources, the compiled stack's versions and the Python ABI.
 `make install` builds it, so tests and workers find it ready. Processes that race to build it take
 a file lock; the module appears by atomic rename.
 
 Where it cannot be built (no compiler, no Python headers) or `OPT2SKILL_NATIVE=0` is set, `load()`
-returns None and says why once in the log; the callers then use the Python integrator and
-Crocoddyl's own residual costs, whose results agree to round-off (tests/test_trajopt_native.py).
+returns None and says why once in the log; the callers then use the Python integrator,
+Crocoddyl's own residual costs and the Python replay loop, whose results agree to round-off
+(tests/test_trajopt_native.py, tests/test_data_validate.py).
 `python -m opt2skill.trajopt.native` builds it and prints where, or why not (exit status 1).
 """
 
@@ -44,7 +50,12 @@ log = logging.getLogger(__name__)
 MODULE = "_native"
 SOURCE = Path(__file__).with_name("module.cpp")
 HEADERS = tuple(sorted(Path(__file__).parent.glob("*.hpp")))  # included by SOURCE
-STACK = ("crocoddyl", "pin", "libpinocchio", "cmeel-boost", "cmeel-eigen")  # what the binary depends on
+STACK = ("crocoddyl", "pin", "libpinocchio", "cmeel-boost", "cmeel-eigen", "mujoco")  # what the binary depends on
+
+# What Pinocchio's CMake config gives its users (INTERFACE_COMPILE_DEFINITIONS): its joint variant
+# has more alternatives than Boost.MPL's preprocessed lists hold.
+PINOCCHIO_DEFINITIONS = ("-DBOOST_MPL_LIMIT_LIST_SIZE=30", "-DBOOST_MPL_LIMIT_VECTOR_SIZE=30",
+                         "-DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", "-DBOOST_FUSION_INVOKE_MAX_ARITY=12")
 
 _loaded: ModuleType | None = None
 _reason: str | None = None  # why it is not loaded, once tried
@@ -92,6 +103,17 @@ def stack_prefix() -> Path:
     raise NativeBuildError(f"no include/crocoddyl above {crocoddyl.__file__}: the crocoddyl wheel ships no headers")
 
 
+def mujoco_folder() -> tuple[Path, Path]:
+    """The mujoco wheel's headers folder and its shared library (the wheel ships both)."""
+    import mujoco
+
+    folder = Path(mujoco.__file__).resolve().parent
+    libraries = sorted(folder.glob("libmujoco.so*"))
+    if not (folder / "include" / "mujoco" / "mujoco.h").exists() or not libraries:
+        raise NativeBuildError(f"the mujoco wheel at {folder} ships no include/mujoco/mujoco.h or libmujoco.so")
+    return folder / "include", libraries[-1]
+
+
 def compiler() -> list[str]:
     return shlex.split(os.environ.get("CXX", "c++"))
 
@@ -102,6 +124,10 @@ def missing_prerequisite() -> str | None:
         return f"no C++ compiler: {compiler()[0]!r} not found (set CXX)"
     try:
         prefix = stack_prefix()
+    except NativeBuildError as exc:
+        return str(exc)
+    try:
+        mujoco_folder()
     except NativeBuildError as exc:
         return str(exc)
     include = prefix / "include"
@@ -116,12 +142,14 @@ def missing_prerequisite() -> str | None:
 def compile_command(prefix: Path, target: Path) -> list[str]:
     include = prefix / "include"
     boost_python = f"boost_python{sys.version_info.major}{sys.version_info.minor}"
+    mujoco_include, libmujoco = mujoco_folder()
     return [
-        *compiler(), "-O2", "-std=c++17", "-shared", "-fPIC", "-DNDEBUG", "-w",
-        f"-I{include}", f"-I{include / 'eigen3'}", f"-I{sysconfig.get_paths()['include']}",
+        *compiler(), "-O2", "-std=c++17", "-shared", "-fPIC", "-DNDEBUG", "-w", *PINOCCHIO_DEFINITIONS,
+        f"-I{include}", f"-I{include / 'eigen3'}", f"-I{mujoco_include}", f"-I{sysconfig.get_paths()['include']}",
         str(SOURCE), "-o", str(target),
         f"-L{prefix / 'lib'}", "-lcrocoddyl", "-lpinocchio_default", f"-l{boost_python}",
-        f"-Wl,-rpath,{prefix / 'lib'}",
+        f"-L{libmujoco.parent}", f"-l:{libmujoco.name}",
+        f"-Wl,-rpath,{prefix / 'lib'}", f"-Wl,-rpath,{libmujoco.parent}",
     ]
 
 

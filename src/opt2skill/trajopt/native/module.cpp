@@ -1,4 +1,6 @@
-// The compiled parts of the optimizer (opt2skill.trajopt.native), one Python module.
+// The compiled parts of the optimizer and its validation (opt2skill.trajopt.native), one Python module.
+// Pinocchio first: it sets Boost.MPL's list sizes for its joint variant before anything includes MPL.
+#include "feedback_replay.hpp"
 #include "barrier_cost.hpp"
 #include "matched_euler.hpp"
 
@@ -6,4 +8,5 @@ BOOST_PYTHON_MODULE(_native) {
   boost::python::import("crocoddyl");  // registers the base classes these derive from
   matched_euler::expose();
   barrier_cost::expose();
+  feedback_replay::expose();
 }
