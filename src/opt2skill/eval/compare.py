@@ -16,7 +16,7 @@ from opt2skill.folder_lock import folder_lock
 from opt2skill.eval.evaluate import EvalRequest, evaluate, load_run_policy, training_fingerprints
 from opt2skill.eval.references import ReferenceSet, check_metric_fields, select_references
 from opt2skill.eval.report import PAPER_ROWS, TABLE_III, TABLE_IV, EvalReport, header, label, mean_se
-from opt2skill.eval.stats import direction, paired_shift, paired_wilcoxon
+from opt2skill.eval.stats import p_cell, paired_shift, paired_wilcoxon
 
 
 @dataclass
@@ -44,12 +44,8 @@ class Comparison:
         return rows
 
     def p_rows(self) -> list[list[str]]:
-        def cell(pair: str, m: str) -> str:
-            p = self.p_values[pair][m]
-            way = direction(p, self.shifts.get(pair, {}).get(m, float("nan")))
-            return _p(p) + (f" {way}" if way else "")
-
-        return [[pair, *(cell(pair, m) for m in (*TABLE_III, *TABLE_IV)), ""] for pair in self.p_values]
+        return [[pair, *(p_cell(p[m], self.shifts.get(pair, {}).get(m, float("nan"))) for m in (*TABLE_III, *TABLE_IV)), ""]
+                for pair, p in self.p_values.items()]
 
     def markdown(self) -> str:
         head = ["run", *(header(m) for m in (*TABLE_III, *TABLE_IV)), "success"]
@@ -118,6 +114,3 @@ def _cache(report, folder: Path) -> None:
     except DataError:
         pass
 
-
-def _p(p: float) -> str:
-    return "-" if p != p else (f"{p:.2g}" if p >= 1e-3 else "<0.001")

@@ -109,3 +109,14 @@ def median_shift(a: list[TrackingErrors], b: list[TrackingErrors]) -> dict[str, 
         x, y = x[np.isfinite(x)], y[np.isfinite(y)]
         out[name] = float(np.median(x) - np.median(y)) if len(x) and len(y) else float("nan")
     return out
+
+
+def p_text(p: float) -> str:
+    """A p-value as the tables print it: two digits, "<0.001" below that, "-" where undefined."""
+    return "-" if p != p else (f"{p:.2g}" if p >= 1e-3 else "<0.001")
+
+
+def p_cell(p: float, shift: float, alpha: float = 0.05) -> str:
+    """`p_text` and, where the test finds a difference, its direction ("0.013 higher")."""
+    way = direction(p, shift, alpha)
+    return p_text(p) + (f" {way}" if way else "")

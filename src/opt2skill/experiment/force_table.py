@@ -18,7 +18,7 @@ import numpy as np
 
 from opt2skill.data.atomic import write_report_files
 from opt2skill.eval.report import EvalReport
-from opt2skill.eval.stats import direction, mean_sd, paired_difference, signed_rank
+from opt2skill.eval.stats import mean_sd, p_cell, paired_difference, signed_rank
 from opt2skill.experiment import paper
 from opt2skill.experiment.table4_settings import ABLATION_LABELS, BEST
 
@@ -77,7 +77,7 @@ class Table4:
                       "| comparison | pairs | " + " | ".join(title.lower() for title, _, _ in METRICS.values()) + " |",
                       "| --- | --- |" + " --- |" * len(METRICS)]
             for pair, t in self.tests.items():
-                lines.append(f"| {pair} | {t['pairs']} | " + " | ".join(_p_cell(t, m) for m in METRICS) + " |")
+                lines.append(f"| {pair} | {t['pairs']} | " + " | ".join(p_cell(t["p"].get(m, np.nan), t.get("shift", {}).get(m, np.nan)) for m in METRICS) + " |")
             lines += ["", f"'lower' / 'higher': {best}'s errors, where p < 0.05 (the median paired difference gives "
                       f"the direction). The paper: {paper.TABLE_IV_TESTS}.", ""]
         if self.transfer:
@@ -127,16 +127,6 @@ def _cell(c: dict[str, Any] | None) -> str:
 
 def _ms(pair) -> str:
     return _cell({"mean": pair[0], "sd": pair[1]})
-
-
-def _p(p: float) -> str:
-    return "-" if p != p else (f"{p:.2g}" if p >= 1e-3 else "<0.001")
-
-
-def _p_cell(test: dict[str, Any], metric: str) -> str:
-    p = test["p"].get(metric, np.nan)
-    way = direction(p, test.get("shift", {}).get(metric, np.nan))
-    return _p(p) + (f" {way}" if way else "")
 
 
 def _values(report: EvalReport, metric: str) -> dict[int, float]:

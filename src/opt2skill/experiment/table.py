@@ -17,7 +17,7 @@ from typing import Any
 
 from opt2skill.data.atomic import write_report_files
 from opt2skill.eval.report import TABLE_III, EvalReport, header, label, mean_se
-from opt2skill.eval.stats import direction, median_shift, paired_shift, paired_wilcoxon, rank_sum
+from opt2skill.eval.stats import direction, median_shift, p_cell, p_text, paired_shift, paired_wilcoxon, rank_sum
 from opt2skill.experiment import paper
 from opt2skill.experiment.settings import SOURCE_LABELS
 
@@ -91,7 +91,7 @@ class Table3:
             lines += ["p-values of TO against each baseline ('-' where undefined):", "",
                       "| " + " | ".join(p_head) + " |", "|" + "|".join(" --- " for _ in p_head) + "|"]
             for pair, t in self.p_values.items():
-                lines.append("| " + " | ".join([pair, t["test"], t["n"], *(_p_cell(t, m) for m in TABLE_III)]) + " |")
+                lines.append("| " + " | ".join([pair, t["test"], t["n"], *(p_cell(t["p"][m], t.get("shift", {}).get(m, float("nan")), ALPHA) for m in TABLE_III)]) + " |")
             lines += ["", f"'lower' / 'higher': TO's errors, where p < {ALPHA:g} (the median paired difference, or "
                       f"the difference of medians, gives the direction). The paper: {paper.PAPER_WILCOXON}.", ""]
             lines += [_claim_line(pair, t) for pair, t in self.p_values.items()] + [""]
@@ -112,18 +112,9 @@ def _cells(r: Row) -> list[str]:
             "-" if pace is None else f"{pace['median']:.2f}"]
 
 
-def _p(p: float) -> str:
-    return "-" if p != p else (f"{p:.2g}" if p >= 1e-3 else "<0.001")
-
-
 def _direction(test: dict[str, Any], metric: str) -> str:
     """"lower" or "higher" (TO's error against the baseline's, where the test finds a difference), else ""."""
     return direction(test["p"][metric], test.get("shift", {}).get(metric, float("nan")), ALPHA)
-
-
-def _p_cell(test: dict[str, Any], metric: str) -> str:
-    direction = _direction(test, metric)
-    return _p(test["p"][metric]) + (f" {direction}" if direction else "")
 
 
 def claim(test: dict[str, Any]) -> dict[str, Any]:
@@ -133,7 +124,7 @@ def claim(test: dict[str, Any]) -> dict[str, Any]:
 
 
 def _claim_line(pair: str, test: dict[str, Any]) -> str:
-    c, names = claim(test), lambda ms: ", ".join(f"{label(m)} ({_p(test['p'][m])})" for m in ms)
+    c, names = claim(test), lambda ms: ", ".join(f"{label(m)} ({p_text(test['p'][m])})" for m in ms)
     baseline = pair.split(" vs ", 1)[-1]
     verdict = "**met**" if c["met"] else f"**not met**: higher on {names(c['higher'])}"
     lower = f"; lower on {names(c['lower'])}" if c["lower"] else ""
