@@ -229,8 +229,8 @@ class Replayer:
         if self.compiled:
             nstep = self._compiled_loop(ref, qpos, sensors, prop_qpos)
             return (qpos[:nstep], sensors[:nstep]) + ((prop_qpos[:nstep],) if props else ())
-        # The loop below is the law of the docstring, written for speed (it is most of a walk's
-        # validation), for machines without the compiled loop above: views of MjData taken once, the state conversions (`qpos_mj_to_pin`,
+        # Without the compiled loop above: the law of the docstring, written for speed (it is most
+        # of a walk's validation): views of MjData taken once, the state conversions (`qpos_mj_to_pin`,
         # `qvel_mj_to_pin`) inlined on preallocated arrays with the rotation in Python floats, the
         # state-independent products computed for all steps at once. Every operation is the one
         # the conversions do, in the same order, so the controls are bitwise those of the plain
@@ -288,7 +288,7 @@ class Replayer:
         arrays = {
             "qpos_ref": (ref["qpos_ref"], (nstep, self.nq)), "q_ref": (ref["q_ref"], (nstep, self.nq)),
             "v_ref": (ref["v_ref"], (nstep, self.nv)), "tau_ref": (ref["tau_ref"], (nstep, nu)),
-            "node": (ref["node"].astype(np.int64), (nstep,)),
+            "node": (ref["node"], (nstep,)),
             "gains": (ref["gains"], (len(ref["gains"]), nu, 2 * self.nv)),
             "target_ref": (ref["qpos_ref"][:, 7:], (nstep, nu)),
             "kp": (cfg.kp, (nu,)), "kd": (cfg.kd, (nu,)), "damping": (self.damping, (nu,)),
