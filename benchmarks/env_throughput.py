@@ -9,13 +9,13 @@ Prints on this machine:
    robots tracking references (a dataset, or a squat recorded in the simulator) under PD targets
    near the reference plus noise like an exploring policy's, against two ceilings measured in
    alternating blocks beside it:
-   - its own physics: the starts and controls of its `rollout` calls over 100 policy steps,
-     recorded, replayed in calls of 20 policy steps (100 physics steps) with nothing between them,
-     on its models and thread pool (`SameWorkCeiling`): what the environment could reach if all
-     its Python and the 5-step call granularity cost nothing;
+   - its own physics: the starts and controls of its simulator's batch calls (`mujoco.batch`) over
+     100 policy steps, recorded, replayed in calls of 20 policy steps (100 physics steps) with
+     nothing between them, on its models and thread pool (`SameWorkCeiling`): what the environment
+     could reach if all its Python and the 5-step call granularity cost nothing;
    - the standing ceiling, counting 5 physics steps per policy step (a moving robot costs the
      physics more than a standing one, which no environment code can recover);
-   and the share of the step spent inside `rollout`;
+   and the share of the step spent inside the batch's calls;
 3. the PPO learner's samples/s (rsl_rl update: 5 epochs of 4 mini-batches over 128 worlds x 48 steps,
    actor and critic [512, 512, 256, 256]) with 1 and 2 torch threads, in float32 and with bf16
    autocast (`train --mixed-precision`).
@@ -67,17 +67,18 @@ class EnvRun:
         self.rng, self.noise = np.random.default_rng(seed), noise
         self.joints = bank.kin_cols["joint_pos"]
         self.physics = 0.0
-        rollout = self.raw_rollout = self.env.sim._pool.rollout
+        sim = self.env.sim
+        rollout = self.raw_rollout = sim._batch.rollout
 
-        def timed(models, datas, start_state, control, **kwargs):  # time spent in the physics itself
+        def timed(nstep, control, **kwargs):  # time spent in the physics itself
             if self.recorded is not None:
-                self.recorded.append((start_state.copy(), control.copy()))
+                self.recorded.append((sim._rows.copy(), np.array(control)))
             start = time.perf_counter()
-            out = rollout(models, datas, start_state, control, **kwargs)
+            out = rollout(nstep, control, **kwargs)
             self.physics += time.perf_counter() - start
             return out
 
-        self.env.sim._pool.rollout = timed
+        sim._batch.rollout = timed
         self.recorded: list[tuple[np.ndarray, np.ndarray]] | None = None  # (start, control) of each call while recording
         self.noises = self.rng.normal(0.0, noise, (64, nworld, robot.nu))
         self.steps, self.elapsed = 0, 0.0
@@ -107,8 +108,9 @@ class EnvRun:
 
 
 class SameWorkCeiling:
-    """The environment's own physics without the environment: the starts and controls its `rollout`
-    calls received (recorded from an `EnvRun`), replayed on its models and thread pool in calls of
+    """The environment's own physics without the environment: the starts (each world's state row,
+    zero warm start) and controls of its batch calls (recorded from an `EnvRun`), replayed on its
+    models and thread pool in calls of
     `block` policy steps (5 * block physics steps) with nothing between them. A block starts from the
     state its first policy step started from and then runs open loop on the recorded controls, which
     is the environment's exact trajectory until a world was reset or pushed inside the block; those
@@ -127,20 +129,24 @@ class SameWorkCeiling:
             for i in range(0, policy_steps - block + 1, block)
         ]
         self.nstep = self.blocks[0][1].shape[1]
-        self.state = np.zeros((sim.nworld, self.nstep, self.blocks[0][0].shape[1]))
-        self.sensordata = np.zeros((sim.nworld, self.nstep, sim._out_sensor.shape[2]))
+        self.out = {"sensordata": np.zeros((sim.nworld, self.nstep, sim._out_sensor.shape[2]))}
         self.calls = 0
 
     def run(self, seconds: float) -> tuple[int, float]:
-        """(policy steps of all worlds, elapsed seconds) of whole calls made until `seconds` have passed."""
-        steps, start, sim = 0, time.perf_counter(), self.sim
+        """(policy steps of all worlds, elapsed seconds) of whole calls made until `seconds` have passed;
+        the environment's worlds are put back as they were."""
+        sim = self.sim
+        saved = sim._rows.copy()
+        steps, start = 0, time.perf_counter()
         while time.perf_counter() - start < seconds:
-            state0, control = self.blocks[self.calls % len(self.blocks)]
-            self.rollout(sim.models, sim._datas, state0, control, control_spec=CTRL, skip_checks=True,
-                         nstep=self.nstep, state=self.state, sensordata=self.sensordata, chunk_size=sim.config.chunk_size)
+            rows, control = self.blocks[self.calls % len(self.blocks)]
+            sim._rows[:] = rows
+            self.rollout(self.nstep, control, control_spec=CTRL, record=("sensordata",), out=self.out)
             self.calls += 1
             steps += sim.nworld * self.nstep // sim.nsubstep
-        return steps, time.perf_counter() - start
+        elapsed = time.perf_counter() - start
+        sim._rows[:] = saved
+        return steps, elapsed
 
 
 def learner_rate(robot, config, bank, threads: int, repeats: int = 3, mixed_precision: bool = False) -> float:
@@ -206,6 +212,7 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="cpu (C MuJoCo, against its ceilings), cuda, cuda:K or "
                         "warp-cpu (whole PPO iterations)")
     parser.add_argument("--iterations", type=int, default=5, help="timed PPO iterations per N (--device not cpu)")
+    parser.add_argument("--no-learner", action="store_true", help="the environment's figures only (cpu)")
     args = parser.parse_args()
     print(machine())
     robot = load_robot("digit")
@@ -229,9 +236,9 @@ def main() -> None:
         run.env.close()
         print(f"env  N={nworld:4d} {rate:7.0f} policy steps/s = {5 * rate:6.0f} physics steps/s; "
               f"{rate / rates['same']:6.1%} of its own physics in {same.nstep}-step calls ({rates['same']:6.0f} policy steps/s); "
-              f"{5 * rate / raw:6.1%} of the standing ceiling ({raw:6.0f}); {physics:5.1%} of the step inside rollout")
+              f"{5 * rate / raw:6.1%} of the standing ceiling ({raw:6.0f}); {physics:5.1%} of the step inside the batch's calls")
     ceiling.close()
-    for threads in (1, 2):
+    for threads in () if args.no_learner else (1, 2):
         for mixed in (False, True):
             print(f"learner  {threads} torch thread(s), {'bf16 autocast' if mixed else 'float32'}: "
                   f"{learner_rate(robot, config, bank, threads, mixed_precision=mixed):8.0f} samples/s "

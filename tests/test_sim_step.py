@@ -135,7 +135,7 @@ def test_joint_acceleration_is_the_mean_over_the_policy_step(batched):
 
 def test_deterministic_across_runs_and_thread_counts(robot, stand_targets, batched):
     targets, outs, _, _ = batched
-    for config in (SimConfig(nsubstep=S, nthread=1), SimConfig(nsubstep=S, nthread=2, chunk_size=1)):
+    for config in (SimConfig(nsubstep=S, nthread=1), SimConfig(nsubstep=S, nthread=2)):
         with MujocoBatchedSim(robot, NWORLD, config) as sim:
             again = run(sim, robot, targets)
         for a, b in zip(outs, again):

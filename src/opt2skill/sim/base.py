@@ -30,7 +30,6 @@ class SimConfig:
     max_delay: float = 0.02  # longest action delay a world may be given, seconds
     nthread: int | None = None  # physics threads; None: one per core
     max_speed: float = 100.0  # any |qvel| entry beyond this (m/s, rad/s) flags a world as exploded
-    chunk_size: int | None = None  # worlds per thread-pool job; None: MuJoCo's default
 
     def __post_init__(self) -> None:
         if not (isinstance(self.nsubstep, int) and 1 <= self.nsubstep <= 100):
@@ -43,8 +42,6 @@ class SimConfig:
             raise ConfigError(f"nthread must be a positive integer or None, got {self.nthread}")
         if not (self.max_speed > 0):
             raise ConfigError(f"max_speed must be positive, got {self.max_speed}")
-        if self.chunk_size is not None and not (isinstance(self.chunk_size, int) and self.chunk_size >= 1):
-            raise ConfigError(f"chunk_size must be a positive integer or None, got {self.chunk_size}")
 
     @property
     def threads(self) -> int:

@@ -1,13 +1,16 @@
-"""The C MuJoCo backend: N worlds stepped by `mujoco.rollout` on a persistent thread pool.
+"""The C MuJoCo backend: N worlds stepped by MuJoCo's own batch (`mujoco.batch.Batch`) on its thread pool.
 
-Each world has its own MjModel copy (its randomized parameters, terrain and props); each pool thread has
-one MjData. A policy step is one `rollout` call of S physics steps for all worlds, with the
-per-physics-step PD targets of every world (action delay included) as its open-loop controls. The
-servos compute u = Kp (q* - q) - Kd qd, clipped to the torque limit, at every physics step.
+Each world has its own MjModel copy (its randomized parameters, terrain and props), given to the batch
+with `set_models`; each pool thread has one MjData. A policy step is one `Batch.rollout` call of S
+physics steps for all worlds, with the per-physics-step PD targets of every world (action delay
+included) as its open-loop controls. The servos compute u = Kp (q* - q) - Kd qd, clipped to the
+torque limit, at every physics step.
 
-Between calls a world's full physics state (time, qpos, qvel, act, history, plugin state) lives in
-one array row; `rollout` starts each call from it with a zero constraint warm start, so the result
-of a policy step is a function of that row, the world's model and its controls alone.
+Between calls a world's integration state (time, qpos, qvel, act, history, warm start, controls, ...)
+is one row of the batch's state, which the batch loads and saves around each call without copies
+through Python. Each policy step starts from a zero constraint warm start, so the result of a policy
+step is a function of the row's physics state, the world's model and its controls alone: the same
+numbers as `mujoco.rollout` from the row's full physics state, which this backend used before.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from collections.abc import Sequence
 
 import mujoco
 import numpy as np
-from mujoco import rollout
+from mujoco import batch as mj_batch
 
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
@@ -30,7 +33,7 @@ from opt2skill.sim.delay import ActionDelay
 from opt2skill.sim.outputs import OutputDecoder
 from opt2skill.sim.params import NominalModel, WorldParams
 
-FULLPHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
+INTEGRATION = mujoco.mjtState.mjSTATE_INTEGRATION.value
 CTRL = mujoco.mjtState.mjSTATE_CTRL.value
 
 
@@ -68,25 +71,21 @@ class MujocoBatchedSim(HostBookkeeping):
         self._corners = np.array([[robot.site_id(s) for s in foot.corner_sites] for foot in robot.config.feet])
         self.models = [copy.deepcopy(base) for _ in range(self.nworld)]
 
-        threads = self.config.threads
-        self._pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
-        self._datas = [mujoco.MjData(base) for _ in range(threads)]  # one per pool thread
+        self._batch = mj_batch.Batch(base, self.nworld, nthread=self.config.threads)
+        self._batch.set_models(self.models)
         self._scratch = mujoco.MjData(base)
-        nstate = mujoco.mj_stateSize(base, FULLPHYSICS)
         S = self.nsubstep
-        self._state = np.zeros((self.nworld, nstate))
-        self._out_state = np.zeros((self.nworld, S, nstate))
-        self._out_sensor = np.zeros((self.nworld, S, base.nsensordata))
-        # FULLPHYSICS starts with time, qpos, qvel; the robot's come first in each, then the props'.
+        self._rows = self._batch.state  # (N, nstate) integration state, live
+        # Views of the rows (writes are the worlds' state at the next call): the robot's coordinates
+        # come first in qpos and qvel, then the free props' 7 positions and 6 velocities, then the doors' hinges.
+        self._time, self._qpos_all, self._qvel_all = (self._batch.bind(f) for f in ("time", "qpos", "qvel"))
+        self._warm_start = self._batch.bind("qacc_warmstart")
+        self._record = {"sensordata": np.zeros((self.nworld, S, base.nsensordata))}
+        self._out_sensor = self._record["sensordata"]
         nq, nv = robot.nq, robot.mj_model.nv
-        self._qpos = slice(1, 1 + nq)
-        self._qvel = slice(1 + base.nq, 1 + base.nq + nv)
-        nfree = self.props.nfree  # free slots' 7 positions and 6 velocities, then the doors' hinges
-        self._prop_qpos = slice(1 + nq, 1 + nq + 7 * nfree)
-        self._prop_qvel = slice(1 + base.nq + nv, 1 + base.nq + nv + 6 * nfree)
-        self._hinge_qpos = slice(self._prop_qpos.stop, 1 + base.nq)
-        self._hinge_qvel = slice(self._prop_qvel.stop, 1 + base.nq + base.nv)
-        self._all_qvel = slice(1 + base.nq, 1 + base.nq + base.nv)
+        nfree = self.props.nfree
+        self._prop_qpos, self._prop_qvel = slice(nq, nq + 7 * nfree), slice(nv, nv + 6 * nfree)
+        self._hinge_qpos, self._hinge_qvel = slice(nq + 7 * nfree, base.nq), slice(nv + 6 * nfree, base.nv)
         self._delay = ActionDelay(self.nworld, base.nu, S, self._max_delay_steps)
         self._params = WorldParams.nominal(self.nworld, base.nbody, base.nu)
         self._z_offset = np.zeros(self.nworld)
@@ -102,8 +101,8 @@ class MujocoBatchedSim(HostBookkeeping):
 
     @property
     def state(self) -> np.ndarray:
-        """(N, nstate) full physics state of every world (mjSTATE_FULLPHYSICS layout), a copy."""
-        return self._state.copy()
+        """(N, nstate) integration state of every world (mjSTATE_INTEGRATION layout), a copy."""
+        return self._rows.copy()
 
     def set_params(self, worlds: np.ndarray, params: WorldParams) -> None:
         worlds = self.check_worlds(worlds)
@@ -118,6 +117,7 @@ class MujocoBatchedSim(HostBookkeeping):
             else:
                 self._nominal.apply(model, p, row)
             self._scene.apply(model, int(p.terrain[row]))
+        self._batch.set_models(self.models)  # the batch's contract after its models are edited
         self._delay.set_delay(worlds, np.rint(p.delay / self._dt).astype(int))
         self._params.assign(worlds, p)
         self._gravity[worlds] = self._nominal.gravity * p.gravity_scale[:, None]
@@ -151,13 +151,13 @@ class MujocoBatchedSim(HostBookkeeping):
             d.qpos[nq + 2 : nq + 7 * self.props.nfree : 7] += self._z_offset[w] * free  # props held or set down
             d.ctrl[:] = targets[row] if targets is not None else d.qpos[7:nq]
             mujoco.mj_forward(model, d)
-            mujoco.mj_getState(model, d, self._state[w], FULLPHYSICS)
+            mujoco.mj_getState(model, d, self._rows[w], INTEGRATION)
             sensors[row, 0] = d.sensordata
         self._delay.clear(worlds, targets)
-        state = self._state[worlds]
+        qpos_all, qvel_all = self._qpos_all[worlds], self._qvel_all[worlds]
         out = self._decoder.decode(
-            state[:, 0], state[:, self._qpos], state[:, self._qvel], state[:, self._qvel], sensors, 0.0, self.policy_dt,
-            self._gravity[worlds], *self._prop_outputs(state, worlds),
+            self._time[worlds], qpos_all[:, :nq], qvel_all[:, :nv], qvel_all[:, :nv], sensors, 0.0, self.policy_dt,
+            self._gravity[worlds], *self._prop_outputs(qpos_all, qvel_all, worlds),
         )
         if self._last is not None:
             self._last.assign(worlds, out)
@@ -165,20 +165,20 @@ class MujocoBatchedSim(HostBookkeeping):
 
     def step(self, targets: np.ndarray) -> SimStep:
         targets = self.checked_targets(targets)
-        start = self._state.copy()
+        nq, nv = self.robot.nq, self.robot.mj_model.nv
+        start, start_time, start_qvel = self._rows.copy(), self._time.copy(), self._qvel_all[:, :nv].copy()
         control = self._delay.sequence(targets)
-        self._pool.rollout(
-            self.models, self._datas, start, control, control_spec=CTRL, skip_checks=True,
-            nstep=self.nsubstep, state=self._out_state, sensordata=self._out_sensor,
-            chunk_size=self.config.chunk_size,
-        )
-        end = self._out_state[:, -1]
-        self._state[:] = end
+        self._warm_start[:] = 0.0
+        try:
+            self._batch.rollout(self.nsubstep, control, control_spec=CTRL, record=("sensordata",), out=self._record)
+        except mj_batch.SimulationError:
+            pass  # MuJoCo raised in those worlds: they kept their state, which the time check below flags
         out = self._decoder.decode(
-            end[:, 0].copy(), end[:, self._qpos].copy(), end[:, self._qvel].copy(), start[:, self._qvel],
-            self._out_sensor, self._dt, self.policy_dt, self._gravity, *self._prop_outputs(end, np.arange(self.nworld)),
+            self._time.copy(), self._qpos_all[:, :nq].copy(), self._qvel_all[:, :nv].copy(), start_qvel,
+            self._out_sensor, self._dt, self.policy_dt, self._gravity,
+            *self._prop_outputs(self._qpos_all, self._qvel_all, np.arange(self.nworld)),
         )
-        bad = self._diverged(start[:, 0], end)
+        bad = self._diverged(start_time)
         if bad.any():
             self._hold(bad, start, out)
         self._last = out
@@ -187,23 +187,22 @@ class MujocoBatchedSim(HostBookkeeping):
     def push(self, worlds: np.ndarray, velocity: np.ndarray) -> None:
         worlds = self.check_worlds(worlds)
         velocity = checked_array("push velocity", velocity, (len(worlds), 3))
-        start = self._qvel.start  # the free joint's linear velocity is in the world frame
-        self._state[worlds, start:start + 3] += velocity
+        self._qvel_all[worlds, :3] += velocity  # the free joint's linear velocity is in the world frame
 
     def close(self) -> None:
-        if self._pool is not None and self._pool.rollout_ is not None:
-            self._pool.close()
+        self._batch = None
 
     # ---------------------------------------------------------------- internals
 
-    def _diverged(self, time_start: np.ndarray, end: np.ndarray) -> np.ndarray:
-        """Worlds whose step went wrong: MuJoCo reset them or stopped (a warning: time did not advance
-        by S physics steps), or a state or reading is not finite, or a speed exceeds the bound."""
+    def _diverged(self, time_start: np.ndarray) -> np.ndarray:
+        """Worlds whose step went wrong: MuJoCo reset them, stopped them (a warning) or raised in them
+        (time did not advance by S physics steps), or a state or reading is not finite, or a speed
+        exceeds the bound."""
         expected = time_start + self.nsubstep * self._dt
         with np.errstate(invalid="ignore", over="ignore"):
-            ok = np.abs(end[:, 0] - expected) <= 0.5 * self._dt
-            ok &= np.abs(end[:, self._all_qvel]).max(axis=1) <= self.config.max_speed  # False for NaN
-            ok &= np.isfinite(end.sum(axis=1) + self._out_sensor.sum(axis=(1, 2)))  # sums keep NaN and inf
+            ok = np.abs(self._time - expected) <= 0.5 * self._dt
+            ok &= np.abs(self._qvel_all).max(axis=1) <= self.config.max_speed  # False for NaN
+            ok &= np.isfinite(self._rows.sum(axis=1) + self._out_sensor.sum(axis=(1, 2)))  # sums keep NaN and inf
         return ~ok
 
     def _prop_states(self, worlds: np.ndarray, pose, vel) -> tuple[np.ndarray, np.ndarray]:
@@ -222,26 +221,26 @@ class MujocoBatchedSim(HostBookkeeping):
         return (np.concatenate([q[:, :nf].reshape(k, 7 * nf), angles], axis=1),
                 np.concatenate([v[:, :nf].reshape(k, 6 * nf), v[:, nf:, 5]], axis=1))
 
-    def _prop_outputs(self, state: np.ndarray, worlds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _prop_outputs(self, qpos: np.ndarray, qvel: np.ndarray, worlds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Moving props' poses (N, nmoving, 7) and velocities (N, nmoving, 6) of `worlds` from their
-        full states: the boxes', then the doors' hinge frames (angular velocity about z their rate)."""
-        nf, k = self.props.nfree, len(state)
+        whole qpos and qvel: the boxes', then the doors' hinge frames (angular velocity about z their rate)."""
+        nf, k = self.props.nfree, len(qpos)
         pose = np.zeros((k, self.props.nmoving, 7))
         vel = np.zeros((k, self.props.nmoving, 6))
-        pose[:, :nf] = state[:, self._prop_qpos].reshape(k, nf, 7)
-        vel[:, :nf] = state[:, self._prop_qvel].reshape(k, nf, 6)
+        pose[:, :nf] = qpos[:, self._prop_qpos].reshape(k, nf, 7)
+        vel[:, :nf] = qvel[:, self._prop_qvel].reshape(k, nf, 6)
         if self.props.nhinged:
-            angles = state[:, self._hinge_qpos]
+            angles = qpos[:, self._hinge_qpos]
             sets = self._params.props[worlds]
             for i in np.unique(sets):
                 rows = sets == i
                 pose[rows, nf:] = self.props.door_poses(int(i), angles[rows])
-            vel[:, nf:, 5] = state[:, self._hinge_qvel]
+            vel[:, nf:, 5] = qvel[:, self._hinge_qvel]
         return pose, vel
 
     def _hold(self, bad: np.ndarray, start: np.ndarray, out: SimStep) -> None:
         """Isolate diverged worlds: back to their state before the step, outputs of that state."""
-        self._state[bad] = start[bad]
+        self._rows[bad] = start[bad]
         out.assign(bad, self._last.rows(bad))
         out.unstable[:] = bad
 
