@@ -169,6 +169,17 @@ def test_a_folder_carried_without_its_datasets_generates_them_again_and_checks_t
     again = json.loads((out / "steps" / "data-ik-test.json").read_text())["result"]
     assert again["contents"] == recorded["contents"] and again["regenerated"] == 1
     assert (out / "eval" / "ik" / "eval.json").is_file() and not (out / "data" / "to_train").exists()
+    # a regeneration stopped part way (one reference missing) is resumed, not read as it is
+    from opt2skill.data.store import DatasetStore
+
+    DatasetStore(out / "data" / "ik_test").files()[-1].unlink()
+    _forget(out, "eval-ik")
+    r = subprocess.run([CLI, "experiment", "table3", "--out", str(out), *tiny], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    n = len(recorded["contents"])
+    assert f"data-ik-test: its dataset {out / 'data' / 'ik_test'} holds {n - 1} of its {n} references" in r.stdout, r.stdout[-3000:]
+    again = json.loads((out / "steps" / "data-ik-test.json").read_text())["result"]
+    assert again["contents"] == recorded["contents"] and again["regenerated"] == 2
     # references that differ from the recorded ones stop the experiment, naming the dataset
     marker = out / "steps" / "data-ik-test.json"
     entry = json.loads(marker.read_text())

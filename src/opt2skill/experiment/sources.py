@@ -65,13 +65,18 @@ def present(step: str, source: str, split: str, s: ExperimentSettings, out: Path
         return record
     result = record["result"]
     folder = Path(result["dataset"])
-    if folder.is_dir():
-        if "contents" not in result:
-            steps.amend(step, {**result, "contents": contents(folder)})
+    held = _held(folder)
+    if held is not None and "contents" not in result:
+        steps.amend(step, {**result, "contents": contents(folder)})
         return steps.record(step)
+    if held is not None and held >= len(result["contents"]):
+        return record
     from opt2skill.cli.console import console
 
-    console.print(f"{step}: its dataset {folder} is gone; generating it again (the same seed and indices)",
+    # A regeneration stopped part way leaves a dataset with fewer references than the policies saw:
+    # the same command resumes it (the generator skips what is there) and checks it like a new one.
+    why = "is gone" if held is None else f"holds {held} of its {len(result['contents'])} references"
+    console.print(f"{step}: its dataset {folder} {why}; generating it again (the same seed and indices)",
                   highlight=False, soft_wrap=True)
     rebuilt = build(source, split, s, out, progress)
     if "contents" in result:
@@ -79,6 +84,15 @@ def present(step: str, source: str, split: str, s: ExperimentSettings, out: Path
     steps.amend(step, {**result, "contents": rebuilt["contents"],
                        "regenerated": result.get("regenerated", 0) + 1})
     return steps.record(step)
+
+
+def _held(folder: Path) -> int | None:
+    """Accepted references in the dataset at `folder`, None if there is none."""
+    if not folder.is_dir():
+        return None
+    from opt2skill.data.reader import Dataset
+
+    return len(Dataset.open(folder))
 
 
 def contents(folder: Path) -> list[list]:
