@@ -15,7 +15,9 @@ Prints on this machine:
      could reach if all its Python and the 5-step call granularity cost nothing;
    - the standing ceiling, counting 5 physics steps per policy step (a moving robot costs the
      physics more than a standing one, which no environment code can recover);
-   and the share of the step spent inside the batch's calls;
+   and the share of the step spent inside the batch's calls; and the same work replayed in calls of
+   one policy step (5 physics steps), as the environment calls the physics, which splits the gap to
+   its own physics into what the short calls cost and what the environment's Python costs;
 3. the PPO learner's samples/s (rsl_rl update: 5 epochs of 4 mini-batches over 128 worlds x 48 steps,
    actor and critic [512, 512, 256, 256]) with 1 and 2 torch threads, in float32 and with bf16
    autocast (`train --mixed-precision`).
@@ -229,14 +231,20 @@ def main() -> None:
         run = EnvRun(robot, config, bank, nworld)
         run.run(0.5)  # into the motion: resets and falls under way
         same = SameWorkCeiling(run)
+        per_step = SameWorkCeiling(run, block=1)
         run.physics = run.elapsed = 0.0
-        rates = interleaved({"env": run, "same": same, "ceiling": ceiling}, args.seconds)
+        rates = interleaved({"env": run, "same": same, "per_step": per_step, "ceiling": ceiling}, args.seconds)
         rate, raw = rates["env"], rates["ceiling"]
         physics = run.physics / run.elapsed
         run.env.close()
         print(f"env  N={nworld:4d} {rate:7.0f} policy steps/s = {5 * rate:6.0f} physics steps/s; "
               f"{rate / rates['same']:6.1%} of its own physics in {same.nstep}-step calls ({rates['same']:6.0f} policy steps/s); "
               f"{5 * rate / raw:6.1%} of the standing ceiling ({raw:6.0f}); {physics:5.1%} of the step inside the batch's calls")
+        # The environment calls the physics once per policy step: the same work in calls of one
+        # policy step, with nothing between them, splits the gap into the calls' own cost and the rest
+        print(f"         the same physics in {per_step.nstep}-step calls, as the environment calls it: "
+              f"{rates['per_step']:6.0f} policy steps/s = {rates['per_step'] / rates['same']:6.1%} of the "
+              f"{same.nstep}-step calls; the environment {rate / rates['per_step']:6.1%} of it")
     ceiling.close()
     for threads in () if args.no_learner else (1, 2):
         for mixed in (False, True):
