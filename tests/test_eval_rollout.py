@@ -119,6 +119,7 @@ def test_report_files_round_trip_with_the_papers_row(recorded, tmp_path):
     text = md_path.read_text()
     assert "| mine | 0.005 ± 0.005 |" in text and "| Opt2Skill (paper, Table III) | 0.03 ± 0.01 | 4.86 ± 4.18 |" in text
     assert "50% (1/2)" in text and all(m.split("_")[0] in text for m in METRICS)
+    assert "Episode ends: time_out 1, fall 1." in text
     assert "median 1.15, 0.90 to 1.40 over 2 references" in text and [r.errors.pace for r in back.results] == [1.4, 0.9]
     # A report written before the signed pace existed still reads, its paces unknown.
     old = json.loads(json_path.read_text())

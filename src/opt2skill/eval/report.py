@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime
 import json
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -193,6 +194,12 @@ class EvalReport:
         return [[self.title(), *(mean_se(s[m]) for m in TABLE_IV), f"{self.success_rate:.0%} ({n - fallen}/{n})",
                  f"{self.mean_episode_length:.2f} s ({self.mean_episode_fraction:.0%})"]]
 
+    def ends_text(self) -> str:
+        """Why the rollouts ended, most common first ("time_out": at the reference's end): a low
+        success rate reads differently when the policy falls than when it drifts off the reference."""
+        ends = Counter(r.cause for r in self.results).most_common()
+        return ", ".join(f"{cause} {count}" for cause, count in ends)
+
     def trajectory_rows(self) -> list[list[str]]:
         rows = []
         for r in self.results:
@@ -220,6 +227,7 @@ class EvalReport:
         lines += ["## Contact force, torque, success (Table IV quantities)", ""]
         lines += _markdown_table(["policy", *(header(m) for m in TABLE_IV), "success (falls counted)", "mean episode length"],
                                  self.extra_rows())
+        lines += ["", f"Episode ends: {self.ends_text()}."]
         task = self.task_summary()
         if task:
             lines += ["", "## Task metrics (the task's own; mean ± SE over references)", ""]
