@@ -226,6 +226,19 @@ def test_every_policy_of_an_experiment_trains_with_its_settings_options(tmp_path
         assert (config.rewards.base_pos.weight > 0) is weighted  # the walk task alone does not track it
         assert config.observations.noise.per_world_min == noise_min
         assert ("--base-position" in training_note(s)) is weighted and ("--noise-min" in training_note(s)) is weighted
+    # Reward terms changed from Table I reach every policy's environment, and the notes.
+    s = resolve("quick", {"rewards": (("base_lin_vel", 0.3, 8.0), ("base_ori", 0.5, None))})
+    request = train_request(s, tmp_path, "human", data, "pos", 10, "opt2skill experiment table3")
+    rewards = tracking_config("walk_human", request.ablation, request.history, request.kp_scale, request.sampling,
+                              request.base_position, request.rewards, request.noise_min).rewards
+    assert (rewards.base_lin_vel.weight, rewards.base_lin_vel.scale) == (0.3, 8.0)
+    assert (rewards.base_ori.weight, rewards.base_ori.scale) == (0.5, 50.0)  # its own scale kept
+    assert "base_lin_vel term at weight 0.3, kernel scale 8 (--reward)" in training_note(s)
+    assert "--reward" not in training_note(resolve("quick"))
+    with pytest.raises(ConfigError, match="--reward: unknown term 'speed'"):
+        resolve("quick", {"rewards": (("speed", 1.0, None),)})
+    with pytest.raises(ConfigError, match="--reward contact_force: this ablation has no reference contact forces"):
+        resolve("quick", {"rewards": (("contact_force", 0.2, None),)})  # IK and human train with Pos inputs
     with pytest.raises(ConfigError, match=r"--noise-min must be a share in \[0, 1\] .*, got 1.5"):
         resolve("quick", {"noise_min": 1.5})
     with pytest.raises(ConfigError, match="--base-position must be one of task, on, off, got 'yes'"):
@@ -240,10 +253,12 @@ def test_a_folder_of_another_experiment_or_other_files_is_refused(tmp_path):
     with pytest.raises(ConfigError, match="holds another experiment .*setting: 'quick' there, 'full' now"):
         claim_folder(tmp_path / "a", resolve("full"))
     older = json.loads((tmp_path / "a" / "experiment.json").read_text())
-    del older["device"], older["mixed_precision"], older["base_position"], older["noise_min"]  # made before these
+    del older["device"], older["mixed_precision"], older["base_position"], older["noise_min"], older["rewards"]  # made before these
     # settings existed: they count as their defaults there
     (tmp_path / "a" / "experiment.json").write_text(json.dumps(older))
     claim_folder(tmp_path / "a", resolve("quick"))
+    with pytest.raises(ConfigError, match=r"rewards: \[\] there, \[\['base_lin_vel', 0.3, 8.0\]\] now"):
+        claim_folder(tmp_path / "a", resolve("quick", {"rewards": (("base_lin_vel", 0.3, 8.0),)}))
     with pytest.raises(ConfigError, match="mixed_precision: False there, True now"):
         claim_folder(tmp_path / "a", resolve("quick", {"mixed_precision": True}))
     with pytest.raises(ConfigError, match="to_ablation: 'pos_f_t' there, 'pos' now"):

@@ -56,10 +56,14 @@ def table3(
                                       "or off (train --base-position; part of the experiment's settings)."),
     noise_min: float = typer.Option(None, "--noise-min", help="Each world's least share of Table II's observation "
                                     "noise, in [0, 1] (train --noise-min; 1, the paper, by default)."),
+    reward: list[str] = typer.Option(None, "--reward", help="A reward term's weight and kernel scale changed from "
+                                     "Table I for every policy, NAME=WEIGHT[:SCALE] (repeatable; train --reward; "
+                                     "e.g. base_lin_vel=0.3:8; part of the experiment's settings)."),
     workers: int = typer.Option(None, min=0, help="Generation processes, and policies trained at once on a CPU (0: every core)."),
     quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
 ) -> None:
     """Table III (TO, IK, human; history 0/5/10/15) and Fig. 3 (stairs, slopes), resumable."""
+    from opt2skill.envs.config import parse_reward
     from opt2skill.experiment.settings import resolve
     from opt2skill.experiment.table3 import run_table3
     from opt2skill.rl.processes import terminate_as_interrupt
@@ -72,7 +76,7 @@ def table3(
         stairs=_numbers(stairs, "--stairs"), slopes=_numbers(slopes, "--slopes"), sweep_trials=sweep_trials,
         sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
         workers=workers, device=device, mixed_precision=mixed_precision or None, base_position=base_position,
-        noise_min=noise_min))
+        noise_min=noise_min, rewards=tuple(parse_reward(text) for text in reward) if reward else None))
     terminate_as_interrupt()  # a kill checkpoints the trainings in flight; the same command resumes
     run_table3(settings, out, progress=not quiet)
 

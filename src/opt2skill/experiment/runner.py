@@ -67,12 +67,14 @@ def train_request(s: Any, out: Path, key: str, data: dict[str, Any], ablation: s
                                 num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=command,
                                 device=s.device, threads=threads, mixed_precision=s.mixed_precision,
                                 base_position=getattr(s, "base_position", "task"),
-                                noise_min=getattr(s, "noise_min", 1.0))
+                                noise_min=getattr(s, "noise_min", 1.0),
+                                rewards=tuple(tuple(change) for change in getattr(s, "rewards", ())))
 
 
 def training_note(s: Any) -> str:
     """What every policy's training did beyond the paper's, for a table's notes: bf16 PPO updates,
-    the base-position term, each world's own share of the observation noise ("" when none)."""
+    the base-position term, each world's own share of the observation noise, reward terms changed
+    ("" when none)."""
     parts = []
     if s.mixed_precision:
         parts.append("PPO updates in bf16 autocast (--mixed-precision)")
@@ -81,13 +83,16 @@ def training_note(s: Any) -> str:
     if getattr(s, "noise_min", 1.0) < 1.0:
         parts.append(f"each world's observation noise at a share drawn in [{s.noise_min:g}, 1] of Table II's "
                      "(--noise-min)")
+    for name, weight, scale in getattr(s, "rewards", ()):
+        parts.append(f"Table I's {name} term at weight {weight:g}" + (f", kernel scale {scale:g}" if scale is not None
+                                                                     else "") + " (--reward)")
     return "".join(", " + part for part in parts)
 
 
 def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: str, history: int, command: str,
                  progress: bool, threads: int | None = None) -> dict[str, Any]:
     """A policy on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed, device,
-    mixed_precision and, where the settings have them, distill_steps, base_position and noise_min), into OUT/runs/KEY; resumes from
+    mixed_precision and, where the settings have them, distill_steps, base_position, noise_min and rewards), into OUT/runs/KEY; resumes from
     the run's newest checkpoint. PPO from scratch, or after distilling the optimizer's feedback expert
     when `s.distill_steps` > 0 (rl.distill_session). `threads`: physics and torch threads (None: every core)."""
     from opt2skill.rl import distill_session, session

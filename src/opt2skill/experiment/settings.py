@@ -70,15 +70,21 @@ class ExperimentSettings(Settings):
     mixed_precision: bool = False  # bf16 autocast in every policy's PPO update, as `train --mixed-precision`
     base_position: str = "task"  # every policy's base-position reward, as `train --base-position`
     noise_min: float = 1.0  # each world's least share of Table II's observation noise, as `train --noise-min`
+    # Reward terms changed from Table I for every policy, (name, weight, scale or None), as `train --reward`
+    rewards: tuple[tuple[str, float, float | None], ...] = ()
 
     def check(self) -> None:
         problems = []
-        from opt2skill.envs.config import BASE_POSITION
+        from opt2skill.envs.config import BASE_POSITION, RewardConfig, with_rewards
 
         if self.base_position not in BASE_POSITION:
             problems.append(f"--base-position must be one of {', '.join(BASE_POSITION)}, got '{self.base_position}'")
         if not 0 <= self.noise_min <= 1:
             problems.append(f"--noise-min must be a share in [0, 1] of Table II's observation noise, got {self.noise_min}")
+        try:  # the kinematic sources train with Pos inputs only: no force or torque term may pay
+            with_rewards(RewardConfig(), tuple(tuple(change) for change in self.rewards), force=False, torque=False)
+        except ConfigError as exc:
+            problems.append(str(exc))
         if self.n_train < 1 or self.n_test < 1:
             problems.append(f"--n-train and --n-test must be >= 1, got {self.n_train} and {self.n_test}")
         if self.train_steps < 1 or not 1 <= self.num_envs <= 4096:
@@ -147,8 +153,8 @@ def claim_folder(out: Path, settings: Settings) -> None:
         except ValueError as exc:
             raise DataError(f"{path} is unreadable ({exc}); it is not an experiment folder this command made") from None
         # A setting added after that folder was made counts as its default there.
-        defaults = {f.name: f.default for f in dataclasses.fields(settings)  # type: ignore[arg-type]
-                    if f.default is not dataclasses.MISSING}
+        defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(settings)  # type: ignore[arg-type]
+                                          if f.default is not dataclasses.MISSING}))  # tuples as lists
         theirs = {**{k: v for k, v in defaults.items() if k in mine and k not in theirs}, **theirs}
         if theirs != mine:
             keys = sorted(k for k in set(theirs) | set(mine) if theirs.get(k) != mine.get(k))
