@@ -99,6 +99,14 @@ def test_pace_tells_an_overshoot_from_a_lag_that_e_pos_x_cannot():
     assert ahead.pace == pytest.approx(1.05) and behind.pace == pytest.approx(0.95)
 
 
+@pytest.mark.parametrize("heading", [0.0, math.pi - 0.01])
+def test_turn_tells_left_from_right_that_e_yaw_cannot(heading):
+    ref = straight_walk(heading)
+    left, right = (tracking_errors(ref, perturbed(ref, heading, yaw=y)) for y in (0.05, -0.05))
+    assert left.E_yaw == pytest.approx(right.E_yaw) == pytest.approx(1000 * 0.05 / N)
+    assert left.turn == pytest.approx(0.05) and right.turn == pytest.approx(-0.05)  # across the +-pi seam too
+
+
 def test_stepping_in_place_has_no_path_percentage():
     ref = straight_walk(speed=0.0)
     e = tracking_errors(ref, perturbed(ref))

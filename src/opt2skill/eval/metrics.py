@@ -12,7 +12,10 @@ compared on the frames it has. Definitions are in docs/eval.md; in short:
 
 Beside the paper's metrics, `pace` is E_pos-x with its sign kept: the distance the robot covered
 along the reference's final heading over the reference path length (1 on pace, above 1 ahead of
-the reference, below 1 behind it), which tells overshooting from lagging.
+the reference, below 1 behind it), which tells overshooting from lagging; and `turn` is the final
+yaw error with its sign (tracked minus reference, rad; positive: turned left, counter-clockwise seen
+from above), which tells a policy that turns one way in every walk from one that wanders
+(E_yaw = 1000 |turn| / frames).
 """
 
 from __future__ import annotations
@@ -59,6 +62,8 @@ class TrackingErrors:
     fell: bool
     # 1 + the signed along-heading error over the path (E_pos-x = 100 |pace - 1|); NaN like E_pos-x
     pace: float = float("nan")
+    # rad, the final yaw error with its sign (tracked - reference; > 0: turned left); E_yaw = 1000 |turn| / frames
+    turn: float = float("nan")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -91,7 +96,8 @@ def tracking_errors(
     ahead = final_err @ axis_x / path if path >= MIN_PATH_LENGTH else np.nan
     pos_x = abs(ahead)
     pos_y = abs(final_err @ axis_y) / n
-    yaw_err = abs(_wrap(yaw_of(tracked.qpos[-1, 3:7]) - heading)) / n
+    turn = _wrap(yaw_of(tracked.qpos[-1, 3:7]) - heading)
+    yaw_err = abs(turn) / n
 
     # A kinematic reference (IK, human motion) has no torques or forces to compare with: its zeros
     # are placeholders, not a plan.
@@ -107,7 +113,7 @@ def tracking_errors(
         "E_force": force_err, "E_torque": torque_err,
     }
     scaled = {name: float(value) * METRICS[name][1] for name, value in values.items()}
-    return TrackingErrors(**scaled, frames=n, fell=bool(fell), pace=float(1.0 + ahead))
+    return TrackingErrors(**scaled, frames=n, fell=bool(fell), pace=float(1.0 + ahead), turn=float(turn))
 
 
 def _ee_error(ref: Trajectory, tracked: Trajectory, names: tuple[str, ...]) -> float:

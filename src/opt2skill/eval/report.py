@@ -84,9 +84,10 @@ class TrajectoryResult:
         if missing:
             raise DataError(f"an evaluation report's trajectory lacks {missing}")
         values = {k: (float("nan") if d[k] is None else float(d[k])) for k in METRICS}
-        pace = d.get("pace")  # absent from reports written before it existed
+        pace, turn = d.get("pace"), d.get("turn")  # absent from reports written before they existed
         errors = TrackingErrors(**values, frames=int(d["frames"]), fell=bool(d["fell"]),
-                                pace=float("nan") if pace is None else float(pace))
+                                pace=float("nan") if pace is None else float(pace),
+                                turn=float("nan") if turn is None else float(turn))
         try:
             task = {k: (float(v["value"]), str(v["unit"])) for k, v in d.get("task_metrics", {}).items()}
         except (TypeError, KeyError, ValueError, AttributeError):
@@ -135,6 +136,16 @@ class EvalReport:
             return None
         return {"median": float(np.median(paces)), "min": float(paces.min()), "max": float(paces.max()), "n": len(paces)}
 
+    def turn_summary(self) -> dict[str, float] | None:
+        """Median of the references' signed final yaw errors (`metrics.TrackingErrors.turn`, rad) and
+        how many turned left (> 0) and right; None for a report older than the turn."""
+        turns = np.array([r.errors.turn for r in self.results])
+        turns = turns[np.isfinite(turns)]
+        if not len(turns):
+            return None
+        return {"median": float(np.median(turns)), "left": int((turns > 0).sum()), "right": int((turns < 0).sum()),
+                "n": len(turns)}
+
     @property
     def mean_episode_length(self) -> float:
         """Mean seconds tracked before the episode ended (a reference's full length when it succeeded)."""
@@ -159,6 +170,7 @@ class EvalReport:
             "summary": {name: {"mean": s.mean, "se": s.se, "n": s.n, "unit": METRICS[name][0]} for name, s in summary.items()},
             "success_rate": self.success_rate, "mean_episode_length_s": self.mean_episode_length,
             "mean_episode_fraction": self.mean_episode_fraction, "pace": self.pace_summary(),
+            "turn": self.turn_summary(),
             "trajectories": [r.to_dict() for r in self.results],
             "task_summary": {k: {"mean": m, "se": se, "n": n, "unit": u} for k, (m, se, n, u) in self.task_summary().items()},
             "paper": {row: {k: {"mean": m, "se": s} for k, (m, s) in values.items()} for row, values in PAPER_ROWS.items()},
@@ -206,7 +218,7 @@ class EvalReport:
             e = r.errors.as_dict()
             seen = {True: "yes", False: "no", None: "?"}[r.seen]
             rows.append([str(r.index), seen, r.cause, f"{(r.frames - 1) * FRAME_DT:.2f}",
-                         *(_num(e[m]) for m in (*TABLE_III, *TABLE_IV)), _num(r.errors.pace)])
+                         *(_num(e[m]) for m in (*TABLE_III, *TABLE_IV)), _num(r.errors.pace), _num(r.errors.turn)])
         return rows
 
     def markdown(self) -> str:
@@ -224,6 +236,11 @@ class EvalReport:
             lines += [f"Pace (distance covered along the reference's heading over its path length; E_pos-x with its "
                       f"sign, 1 on pace): median {pace['median']:.2f}, {pace['min']:.2f} to {pace['max']:.2f} over "
                       f"{pace['n']} references.", ""]
+        turn = self.turn_summary()
+        if turn is not None:
+            lines += [f"Turn (the final yaw error with its sign, tracked - reference; E_yaw with its sign, > 0 left): "
+                      f"median {turn['median']:+.3f} rad; left in {turn['left']}, right in {turn['right']} of "
+                      f"{turn['n']} references.", ""]
         lines += ["## Contact force, torque, success (Table IV quantities)", ""]
         lines += _markdown_table(["policy", *(header(m) for m in TABLE_IV), "success (falls counted)", "mean episode length"],
                                  self.extra_rows())
@@ -234,7 +251,8 @@ class EvalReport:
             lines += _markdown_table(["policy", *(f"{k} ({u})" if u else k for k, (_, _, _, u) in task.items())],
                                      [[self.title(), *(mean_se(Summary(m, se, n)) for m, se, n, _ in task.values())]])
         lines += ["", "## Per reference", ""]
-        lines += _markdown_table(["index", "trained on", "end", "tracked (s)", *(label(m) for m in (*TABLE_III, *TABLE_IV)), "pace"],
+        lines += _markdown_table(["index", "trained on", "end", "tracked (s)", *(label(m) for m in (*TABLE_III, *TABLE_IV)), "pace",
+                                  "turn (rad)"],
                                  self.trajectory_rows())
         return "\n".join(lines) + "\n"
 

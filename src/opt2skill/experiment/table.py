@@ -60,6 +60,7 @@ class Table3:
                 s = r.report.summary()
                 out.update(summary={m: {"mean": s[m].mean, "se": s[m].se, "n": s[m].n} for m in TABLE_III},
                            success_rate=r.report.success_rate, pace=r.report.pace_summary(),
+                           turn=r.report.turn_summary(),
                            references=r.report.references.get("note"),
                            policy=r.report.policy.get("description"))
             return out
@@ -70,7 +71,8 @@ class Table3:
                 "notes": self.notes}
 
     def markdown(self) -> str:
-        head = ["category", "method", *(header(m) for m in TABLE_III), "success", "pace (median)"]
+        head = ["category", "method", *(header(m) for m in TABLE_III), "success", "pace (median)",
+                "turns (left / right)"]
         lines = [f"# Table III ({self.setting} setting): tracking on held-out references (mean ± SE; lower is better)", "",
                  f"Rollouts with {self.condition}.", ""]
         if self.setting != "full":
@@ -82,10 +84,11 @@ class Table3:
                 lines.append("| " + " | ".join([category, r.name, *_cells(r)]) + " |")
                 if r.paper is not None:
                     lines.append("| " + " | ".join(["", f"*paper: {r.name}*", *(f"*{mean_se(r.paper[m])}*" for m in TABLE_III),
-                                                    "", ""]) + " |")
+                                                    "", "", ""]) + " |")
         lines += ["", f"Paper rows (italics): {paper.SOURCE}; Agility's simulator, not this code's results. Pace: the "
                   "distance covered along the reference's heading over its path length, E_pos-x with its sign (1 on "
-                  "pace, above 1 ahead); not a paper metric.", ""]
+                  "pace, above 1 ahead); turns: how many references the policy ended turned left and right of "
+                  "(the sign of the final yaw error, E_yaw's sign); neither is a paper metric.", ""]
         if self.p_values:
             p_head = ["comparison", "test", "pairs / sizes", *(label(m) for m in TABLE_III)]
             lines += ["p-values of TO against each baseline ('-' where undefined):", "",
@@ -104,12 +107,13 @@ class Table3:
 
 def _cells(r: Row) -> list[str]:
     if r.report is None:
-        return ["-"] * len(TABLE_III) + [f"not available: {r.missing}", "-"]
+        return ["-"] * len(TABLE_III) + [f"not available: {r.missing}", "-", "-"]
     s = r.report.summary()
     n = len(r.report.results)
-    pace = r.report.pace_summary()
+    pace, turn = r.report.pace_summary(), r.report.turn_summary()
     return [*(mean_se(s[m]) for m in TABLE_III), f"{r.report.success_rate:.0%} of {n}",
-            "-" if pace is None else f"{pace['median']:.2f}"]
+            "-" if pace is None else f"{pace['median']:.2f}",
+            "-" if turn is None else f"{turn['left']} / {turn['right']}"]
 
 
 def _direction(test: dict[str, Any], metric: str) -> str:
