@@ -202,8 +202,24 @@ def test_bad_setting_is_one_clear_error(tmp_path):
         resolve("quick", {"n_train": 0})
     with pytest.raises(ConfigError, match="--to-ablation must be one of pos, pos_f, pos_t, pos_f_t, got 'torque'"):
         resolve("quick", {"to_ablation": "torque"})
-    with pytest.raises(ConfigError, match="history 10 must be one of --histories"):
+    with pytest.raises(ConfigError, match=r"history 10 \(--history\) must be one of --histories \[0, 5\]"):
         resolve("quick", {"histories": (0, 5)})
+    r = subprocess.run([CLI, "experiment", "table3", "--history", "3", "--out", str(tmp_path / "y")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "history 3 (--history) must be one of --histories [0, 5, 10, 15]" in r.stderr, r.stderr
+    assert not (tmp_path / "y").exists()
+
+
+def test_the_data_rows_train_at_the_chosen_history_and_the_notes_say_so():
+    from opt2skill.experiment.table3 import history_note, policies
+
+    s = resolve("quick", {"history": 0, "histories": (0,)})
+    assert policies(s) == {"to": ("to", 0), "ik": ("ik", 0), "human": ("human", 0)}  # every source alike, no extra rows
+    assert history_note(s) == " (the paper's data rows: 10; --history)"
+    assert history_note(resolve("quick")) == ""
+    # The paper's default: the data rows at 10, the other histories as TO ablation rows.
+    assert policies(resolve("quick")) == {"to": ("to", 10), "ik": ("ik", 10), "human": ("human", 10),
+                                          "hist0": ("to", 0), "hist5": ("to", 5), "hist15": ("to", 15)}
 
 
 def test_every_policy_of_an_experiment_trains_with_its_settings_options(tmp_path):

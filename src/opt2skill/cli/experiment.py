@@ -41,6 +41,8 @@ def table3(
     train_steps: int = typer.Option(None, "--train-steps", help="Environment steps per policy (the same for all)."),
     num_envs: int = typer.Option(None, "--num-envs", help="Simulated worlds while training."),
     histories: str = typer.Option(None, help="History lengths of the ablation rows, e.g. 0,5,10,15."),
+    history: int = typer.Option(None, help="History length of the data rows (TO, IK, human; the paper's 10); one of "
+                                "--histories."),
     stairs: str = typer.Option(None, help="Stair heights of the sweep, m, e.g. 0,0.04,0.08."),
     slopes: str = typer.Option(None, help="Slope angles of the sweep, degrees, e.g. 0,10,20."),
     sweep_trials: int = typer.Option(None, "--sweep-trials", help="Trials per terrain setting (yaw in +-25 deg)."),
@@ -72,7 +74,7 @@ def table3(
     settings = resolve(setting, dict(
         n_train=n_train, n_test=n_test, duration=duration, human_duration=human_duration,
         speed=_range(speed, "--speed"), clearance=_range(clearance, "--clearance"), train_steps=train_steps,
-        num_envs=num_envs, histories=tuple(int(h) for h in hist) if hist is not None else None,
+        num_envs=num_envs, histories=tuple(int(h) for h in hist) if hist is not None else None, history=history,
         stairs=_numbers(stairs, "--stairs"), slopes=_numbers(slopes, "--slopes"), sweep_trials=sweep_trials,
         sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
         workers=workers, device=device, mixed_precision=mixed_precision or None, base_position=base_position,

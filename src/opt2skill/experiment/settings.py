@@ -94,7 +94,8 @@ class ExperimentSettings(Settings):
         if self.sweep_trials < 1:
             problems.append(f"--sweep-trials must be >= 1, got {self.sweep_trials}")
         if self.history not in self.histories:
-            problems.append(f"the data rows' history {self.history} must be one of --histories {list(self.histories)}")
+            problems.append(f"the data rows' history {self.history} (--history) must be one of --histories "
+                            f"{list(self.histories)}")
         if any(not 0 <= h <= 50 for h in self.histories):
             problems.append(f"--histories must be in [0, 50], got {list(self.histories)}")
         for name, (lo, hi) in (("speed", self.speed), ("clearance", self.clearance)):

@@ -190,9 +190,15 @@ def _data_notes(s: ExperimentSettings, steps: Steps) -> list[str]:
         notes.append("human-data: constructed walking clips (opt2skill.retarget.synthetic), not motion capture; "
                      "pass --human DIR for AMASS/BVH clips")
     notes.append(f"same pipeline for every policy: PPO from scratch, {s.train_steps:,} environment steps on {s.num_envs} "
-                 f"worlds, seed {s.seed}{training_note(s)}; TO with the '{s.to_ablation}' inputs, IK and human with 'pos' "
+                 f"worlds, seed {s.seed}, history {s.history}{history_note(s)}{training_note(s)}; TO with the '{s.to_ablation}' inputs, IK and human with 'pos' "
                  "(no torques or forces in kinematic records)")
     return notes
+
+
+def history_note(s: ExperimentSettings) -> str:
+    """Where the data rows' history is not the paper's (its Opt2Skill row is history 10), say so."""
+    paper = 10
+    return "" if s.history == paper else f" (the paper's data rows: {paper}; --history)"
 
 
 def _sweep(s: ExperimentSettings, out: Path, source: str, terrain: str, steps: Steps, progress: bool) -> dict:
