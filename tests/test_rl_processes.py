@@ -4,6 +4,7 @@ train one policy. Real processes (spawned, gloo), real MuJoCo, real rsl_rl updat
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -236,3 +237,18 @@ def test_sigterm_stops_every_process_at_an_iteration_end_with_a_checkpoint(squat
     # Rank 0 checkpointed the last whole iteration (no periodic one was due): nothing logged is lost.
     logged = read_progress(out)[-1]["iteration"]
     assert checkpoint.load(checkpoint.latest(out))["iteration"] == logged >= 3
+
+
+def test_the_command_shortens_openmp_spinning_before_torch_loads():
+    """libgomp reads GOMP_SPINCOUNT once, when torch loads: the command sets it before any of its
+    modules can load torch, and leaves a user's own spin setting alone (benchmarks/shared_cores.py)."""
+    code = "import os, sys, opt2skill.cli.app; print(os.environ.get('GOMP_SPINCOUNT'), 'torch' in sys.modules)"
+    base = {k: v for k, v in os.environ.items() if k not in ("GOMP_SPINCOUNT", "OMP_WAIT_POLICY")}
+
+    def run(**env) -> str:
+        return subprocess.run([sys.executable, "-c", code], env=base | env, capture_output=True, text=True,
+                              check=True, timeout=120).stdout.strip()
+
+    assert run() == "10000 False"
+    assert run(GOMP_SPINCOUNT="300000") == "300000 False"
+    assert run(OMP_WAIT_POLICY="ACTIVE") == "None False"
