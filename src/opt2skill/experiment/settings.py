@@ -43,6 +43,9 @@ class Settings:
 S = TypeVar("S", bound=Settings)
 
 
+PAPER_HISTORY = 10  # the history length of the paper's Opt2Skill rows (Table III)
+
+
 @dataclass(frozen=True)
 class ExperimentSettings(Settings):
     experiment: ClassVar[str] = "table3"
@@ -56,7 +59,7 @@ class ExperimentSettings(Settings):
     train_steps: int  # environment steps per policy, all worlds together (the same budget for every source)
     num_envs: int
     histories: tuple[int, ...] = (0, 5, 10, 15)  # the ablation rows, on the TO data
-    history: int = 10  # the data rows' history length (the paper's Opt2Skill)
+    history: int = PAPER_HISTORY  # the data rows' history length
     to_ablation: str = "pos_f_t"  # the TO policy's inputs; kinematic sources can only have `pos`
     stairs: tuple[float, ...] = ()  # m, step heights of the sweep
     slopes: tuple[float, ...] = ()  # degrees

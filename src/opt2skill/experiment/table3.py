@@ -33,7 +33,7 @@ from opt2skill.cli.console import console
 from opt2skill.experiment import sources
 from opt2skill.experiment.runner import (add_output, done, need, publish_table, run_experiment,
                                          train_policies_at_once, train_policy, training_note)
-from opt2skill.experiment.settings import SOURCE_LABELS, SOURCES, ExperimentSettings
+from opt2skill.experiment.settings import PAPER_HISTORY, SOURCE_LABELS, SOURCES, ExperimentSettings
 from opt2skill.experiment.steps import DONE, Steps, Unavailable
 
 TERRAINS = ("stairs", "slope")
@@ -197,8 +197,7 @@ def _data_notes(s: ExperimentSettings, steps: Steps) -> list[str]:
 
 def history_note(s: ExperimentSettings) -> str:
     """Where the data rows' history is not the paper's (its Opt2Skill row is history 10), say so."""
-    paper = 10
-    return "" if s.history == paper else f" (the paper's data rows: {paper}; --history)"
+    return "" if s.history == PAPER_HISTORY else f" (the paper's data rows: {PAPER_HISTORY}; --history)"
 
 
 def _sweep(s: ExperimentSettings, out: Path, source: str, terrain: str, steps: Steps, progress: bool) -> dict:
