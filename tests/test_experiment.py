@@ -210,13 +210,16 @@ def test_bad_setting_is_one_clear_error(tmp_path):
     assert not (tmp_path / "y").exists()
 
 
-def test_the_data_rows_train_at_the_chosen_history_and_the_notes_say_so():
-    from opt2skill.experiment.table3 import history_note, policies
+def test_the_data_rows_train_at_the_chosen_history_and_the_notes_say_so(tmp_path):
+    from opt2skill.experiment.steps import Steps
+    from opt2skill.experiment.table3 import _data_notes, history_note, policies
 
     s = resolve("quick", {"history": 0, "histories": (0,)})
     assert policies(s) == {"to": ("to", 0), "ik": ("ik", 0), "human": ("human", 0)}  # every source alike, no extra rows
     assert history_note(s) == " (the paper's data rows: 10; --history)"
     assert history_note(resolve("quick")) == ""
+    note = _data_notes(s, Steps(tmp_path, total=1))[-1]  # the table's note on the pipeline names it
+    assert "seed 0, the data rows at history 0 (the paper's data rows: 10; --history)" in note
     # The paper's default: the data rows at 10, the other histories as TO ablation rows.
     assert policies(resolve("quick")) == {"to": ("to", 10), "ik": ("ik", 10), "human": ("human", 10),
                                           "hist0": ("to", 0), "hist5": ("to", 5), "hist15": ("to", 15)}

@@ -190,7 +190,8 @@ def _data_notes(s: ExperimentSettings, steps: Steps) -> list[str]:
         notes.append("human-data: constructed walking clips (opt2skill.retarget.synthetic), not motion capture; "
                      "pass --human DIR for AMASS/BVH clips")
     notes.append(f"same pipeline for every policy: PPO from scratch, {s.train_steps:,} environment steps on {s.num_envs} "
-                 f"worlds, seed {s.seed}, history {s.history}{history_note(s)}{training_note(s)}; TO with the '{s.to_ablation}' inputs, IK and human with 'pos' "
+                 f"worlds, seed {s.seed}, the data rows at history {s.history}{history_note(s)}{training_note(s)}; "
+                 f"TO with the '{s.to_ablation}' inputs, IK and human with 'pos' "
                  "(no torques or forces in kinematic records)")
     return notes
 
