@@ -4,6 +4,8 @@ untrained actor does not."""
 
 import copy
 import dataclasses
+import os
+import signal
 
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from opt2skill.errors import ConfigError
 from opt2skill.eval.metrics import tracking_errors
 from opt2skill.expert.acting import EnvExpert
 from opt2skill.model import load_robot
+from opt2skill.rl import checkpoint, processes
 from opt2skill.rl.anchor import ExpertAnchor
 from opt2skill.rl.distill import Distiller, LabelBuffer
 from opt2skill.rl.distill_config import DistillConfig, distillation_tracking_config, finetune_tracking_config
@@ -184,3 +187,34 @@ def test_a_student_distilled_on_noisy_readings_passes_less_of_their_noise_on(squ
             samples.append(student(noisy.numpy()))
         spread[noise] = float(np.std(np.stack(samples), axis=0).mean())
     assert spread[1.0] < 0.3 * spread[0.0], spread  # measured 0.015 against 0.20 action units
+
+
+def test_a_sigterm_during_the_updates_ends_distillation_after_them_with_the_iteration_saved(squats, tmp_path):
+    """SIGTERM lands inside the second iteration's Adam steps: they finish, counted and logged, and the
+    distiller stops with a checkpoint of both whole iterations."""
+    config = distillation_tracking_config(tracking_config("squat"), SMALL)
+    bank = ReferenceBank.from_trajectories(ROBOT, squats, config.observations.end_effectors)
+    with TrackingEnv(ROBOT, bank, config, 4, seed=0, threads=1) as env:
+        actor = build_actor(SMALL.finetune_ppo(), env.actor_dim, env.critic_dim, env.nu)
+        distiller = Distiller(env, EnvExpert(env, squats, SMALL.expert), actor, SMALL, run=tmp_path, seed=0)
+        learn, learned = distiller.learn, []
+
+        def learn_with_a_signal_inside():
+            learned.append(1)
+            if len(learned) == 2:
+                os.kill(os.getpid(), signal.SIGTERM)
+            return learn()
+
+        distiller.learn = learn_with_a_signal_inside
+        previous = signal.getsignal(signal.SIGTERM)
+        processes.terminate_as_interrupt()
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                distiller.train(5, progress=False, checkpoint_every=100)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+    assert distiller.iteration == 2 and len(learned) == 2
+    saved = checkpoint.load(checkpoint.latest(tmp_path))
+    assert saved["iteration"] == 2
+    for name, value in actor.state_dict().items():
+        assert torch.equal(saved["actor_state_dict"][name], value)

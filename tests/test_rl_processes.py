@@ -252,3 +252,31 @@ def test_the_command_shortens_openmp_spinning_before_torch_loads():
     assert run() == "10000 False"
     assert run(GOMP_SPINCOUNT="300000") == "300000 False"
     assert run(OMP_WAIT_POLICY="ACTIVE") == "None False"
+
+
+def test_interrupts_held_in_a_block_take_effect_when_it_ends():
+    """A SIGTERM inside the block reaches its handler after the block's last statement, once however
+    often it came; the handler is restored; a block that raises drops the held signal."""
+    import signal
+
+    reached, previous = [], signal.getsignal(signal.SIGTERM)
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with processes.interrupts_held():
+                os.kill(os.getpid(), signal.SIGTERM)
+                os.kill(os.getpid(), signal.SIGTERM)
+                reached.append("after the signals")
+        assert reached == ["after the signals"]
+        assert signal.getsignal(signal.SIGTERM) is handler
+        with pytest.raises(ValueError):  # the block's own error, not the interrupt
+            with processes.interrupts_held():
+                os.kill(os.getpid(), signal.SIGTERM)
+                raise ValueError("the block failed")
+        assert signal.getsignal(signal.SIGTERM) is handler
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -5,6 +5,8 @@ is a function of its seed; a checkpoint of another policy is refused wherever it
 from __future__ import annotations
 
 import dataclasses
+import os
+import signal
 
 import numpy as np
 import pytest
@@ -16,7 +18,7 @@ from torch.utils.tensorboard import SummaryWriter
 from opt2skill.envs import tracking_config
 from opt2skill.envs.config import RewardConfig
 from opt2skill.errors import DataError
-from opt2skill.rl import checkpoint
+from opt2skill.rl import checkpoint, processes
 from opt2skill.rl.config import PPOConfig
 from opt2skill.rl.policy import load_policy
 from opt2skill.rl.run import RunSpec, open_run, read_progress
@@ -101,3 +103,36 @@ def test_the_learner_sits_on_the_physics_gpu_and_on_the_cpu_otherwise(reference)
     assert {p.device for p in trainer.alg.actor.parameters()} == {trainer.venv.device}
     actions = Policy(trainer.alg.actor)(obs["actor"].numpy())
     assert isinstance(actions, np.ndarray) and actions.shape == (2, env.nu)
+
+
+def test_a_sigterm_during_the_update_ends_training_after_it_with_the_iteration_saved(reference, tmp_path,
+                                                                                       monkeypatch):
+    """SIGTERM lands inside the second PPO update: the update, its counters and its log line finish,
+    then training stops and checkpoints the two whole iterations (before, the half-updated networks
+    were not saved and the run fell back to its last periodic checkpoint)."""
+    env = make_env([reference], num_envs=2)
+    trainer = Trainer(env, SMALL, tmp_path, seed=0)
+    trainer.warm_up_normalizers()
+    update, updates = trainer.alg.update, []
+
+    def update_with_a_signal_inside():
+        updates.append(1)
+        if len(updates) == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return update()
+
+    monkeypatch.setattr(trainer.alg, "update", update_with_a_signal_inside)
+    previous = signal.getsignal(signal.SIGTERM)
+    processes.terminate_as_interrupt()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            trainer.train(Schedule(total_steps=5 * trainer.batch, checkpoint_every=100), progress=False)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert trainer.iteration == 2 and len(updates) == 2 and len(read_progress(tmp_path)) == 2
+    saved = checkpoint.load(checkpoint.latest(tmp_path))
+    assert saved["iteration"] == 2 and saved["env_steps"] == 2 * trainer.batch
+    restored = Trainer(make_env([reference], num_envs=2), SMALL, tmp_path, seed=0)
+    restored.restore(saved)
+    for a, b in zip(restored.alg.actor.parameters(), trainer.alg.actor.parameters()):
+        assert torch.equal(a, b)

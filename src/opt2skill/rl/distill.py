@@ -33,7 +33,7 @@ from tensordict import TensorDict
 
 from opt2skill.envs import TrackingEnv
 from opt2skill.expert.acting import EnvExpert
-from opt2skill.rl import checkpoint
+from opt2skill.rl import checkpoint, processes
 from opt2skill.rl.best import judge_actor
 from opt2skill.rl.distill_config import DistillConfig
 from opt2skill.rl.processes import ONE, Group
@@ -175,8 +175,10 @@ class Distiller:
 
     def train_iteration(self) -> dict[str, float]:
         start = time.perf_counter()
-        figures = self.collect()
-        collected = time.perf_counter()
+        return self._learn(self.collect(), start, time.perf_counter())
+
+    def _learn(self, figures: dict[str, float], start: float, collected: float) -> dict[str, float]:
+        """The updates from the collected rollout, and the counters; the iteration's figures."""
         figures.update(self.learn())
         learned = time.perf_counter()
         self.iteration += 1
@@ -192,7 +194,8 @@ class Distiller:
 
     def train(self, total_iterations: int, progress: bool = True, writer=None,
               checkpoint_every: int = 50, checkpoint_minutes: float = 5.0) -> dict[str, float]:
-        """Run until `total_iterations`; checkpoint periodically, at the end and on Ctrl-C/SIGTERM."""
+        """Run until `total_iterations`; checkpoint periodically, at the end and on Ctrl-C/SIGTERM (an
+        interrupt during the updates takes effect when they end: the checkpoint holds whole iterations)."""
         self.total_iterations = total_iterations
         bar = None
         if progress:
@@ -203,12 +206,15 @@ class Distiller:
         last_save, figures = time.monotonic(), {}
         try:
             while self.iteration < total_iterations:
-                figures = self.train_iteration()
-                self._log(figures, writer)
-                if bar is not None:
-                    bar.update(self.batch)
-                    bar.set_postfix_str(f"loss {figures['distill/loss']:.4f}, expert {figures['distill/expert_share']:.2f}",
-                                        refresh=False)
+                start = time.perf_counter()
+                collected = self.collect()  # an interrupt here drops the rollout in flight
+                with processes.interrupts_held():  # ... but not the updates: they end, counted and logged, first
+                    figures = self._learn(collected, start, time.perf_counter())
+                    self._log(figures, writer)
+                    if bar is not None:
+                        bar.update(self.batch)
+                        bar.set_postfix_str(f"loss {figures['distill/loss']:.4f}, "
+                                            f"expert {figures['distill/expert_share']:.2f}", refresh=False)
                 due = self.iteration % checkpoint_every == 0 or time.monotonic() - last_save > 60 * checkpoint_minutes
                 judged = self.judge is not None and (self.judge.due(self.iteration) or self.iteration == total_iterations)
                 if self.writes and (due or judged or self.iteration == total_iterations):

@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -213,6 +214,30 @@ def terminate_as_interrupt() -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, handler)
+
+
+@contextlib.contextmanager
+def interrupts_held():
+    """Ctrl-C and SIGTERM that arrive inside the block are handled when it ends, by the handlers they
+    would have met then: a block that must not be cut in two (a learning step with its counters and
+    its log line) ends whole, and the interrupt takes effect right after it. Only Python handlers are
+    held (a default SIGTERM still kills at once), only in the main thread (where Python handles
+    signals), and a block that raises drops what it held (its exception ends the command anyway)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    previous = {signum: handler for signum, handler in previous.items() if callable(handler)}
+    for signum in previous:
+        signal.signal(signum, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    for signum in dict.fromkeys(held):  # each signal once, in the order they came
+        previous[signum](signum, None)
 
 
 def interrupt_children() -> None:

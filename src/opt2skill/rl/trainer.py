@@ -28,6 +28,7 @@ from opt2skill.errors import DataError
 from opt2skill.rl import checkpoint
 from opt2skill.rl.best import judge_actor
 from opt2skill.rl.config import PPOConfig
+from opt2skill.rl import processes
 from opt2skill.rl.processes import ONE, Group
 from opt2skill.rl.run import PROGRESS_FILE, trim_progress
 from opt2skill.rl.vec_env import TrackingVecEnv
@@ -87,7 +88,6 @@ class Trainer:
         self.iteration = 0  # completed iterations
         self.env_steps = 0
         self.elapsed = 0.0  # wall seconds spent training, over all invocations
-        self._updating = False
 
     # ------------------------------------------------------------ checkpoints
 
@@ -206,6 +206,10 @@ class Trainer:
 
     def train_iteration(self) -> dict[str, float]:
         """Collect one rollout of every world, update the policy; the iteration's figures."""
+        return self._learn(*self._collect())
+
+    def _collect(self) -> tuple[float, float]:
+        """One rollout of every world into PPO's storage; when it started and ended."""
         alg, venv = self.alg, self.venv
         venv.stats.clear()
         start = time.perf_counter()
@@ -218,11 +222,13 @@ class Trainer:
                 obs, rewards, dones, extras = venv.step(actions)
                 alg.process_env_step(obs, rewards, dones, extras)
             alg.compute_returns(obs)
-        collected = time.perf_counter()
-        self._updating = True  # an interrupt now would leave the networks half updated
+        return start, time.perf_counter()
+
+    def _learn(self, start: float, collected: float) -> dict[str, float]:
+        """The update from the collected rollout, and the counters; the iteration's figures."""
+        alg, venv = self.alg, self.venv
         losses = alg.update()
         anchored = self.anchor.learn() if self.anchor is not None else {}
-        self._updating = False
         learned = time.perf_counter()
         self.iteration += 1
         self.env_steps += self.batch
@@ -248,9 +254,9 @@ class Trainer:
               stop_after: int | None = None) -> dict[str, float]:
         """Train until `schedule.total_steps` environment steps (or, with `stop_after`, until that
         many iterations are done; the schedule's total still sets the curriculum progress);
-        checkpoint periodically and at the end, and when interrupted by Ctrl-C or SIGTERM during a
-        rollout (an interrupt during an update keeps the last checkpoint: the networks would be
-        half updated)."""
+        checkpoint periodically and at the end, and when interrupted by Ctrl-C or SIGTERM (the
+        rollout in flight is dropped; an interrupt during an update takes effect when it ends, so
+        the checkpoint holds every whole iteration)."""
         total_iterations = self.iterations_for(schedule.total_steps)
         last = total_iterations if stop_after is None else min(stop_after, total_iterations)
         bar = _bar(progress, total_iterations * self.batch, self.env_steps)
@@ -260,14 +266,17 @@ class Trainer:
                 if self.pace is None:
                     done = self.env_steps / (total_iterations * self.batch)
                     self.env.set_progress(self.curriculum_start + (1.0 - self.curriculum_start) * done)
-                figures = self.train_iteration()
-                if self.pace is not None:  # the next iteration's world, from this one's failures
-                    self.env.set_progress(self.pace.advance(self.env.progress, figures,
-                                                            self.batch * self.env.sim.policy_dt))
-                self._log(figures, writer)
-                if bar is not None:
-                    bar.update(self.batch)
-                    bar.set_postfix_str(_postfix(figures), refresh=False)
+                timing = self._collect()  # an interrupt here drops the rollout in flight
+                # ... but not the update: it ends with its counters, curriculum and log line first
+                with processes.interrupts_held():
+                    figures = self._learn(*timing)
+                    if self.pace is not None:  # the next iteration's world, from this one's failures
+                        self.env.set_progress(self.pace.advance(self.env.progress, figures,
+                                                                self.batch * self.env.sim.policy_dt))
+                    self._log(figures, writer)
+                    if bar is not None:
+                        bar.update(self.batch)
+                        bar.set_postfix_str(_postfix(figures), refresh=False)
                 due = self.iteration % schedule.checkpoint_every == 0 or (
                     time.monotonic() - last_save > 60 * schedule.checkpoint_minutes)
                 judged = self.judge is not None and (self.judge.due(self.iteration) or self.iteration == last)
@@ -280,7 +289,7 @@ class Trainer:
                 if self.group.stop_requested():  # a process of the group was stopped: all end here
                     raise KeyboardInterrupt
         except KeyboardInterrupt:
-            if self.writes and self.iteration > 0 and not self._updating:
+            if self.writes and self.iteration > 0:
                 self.save()  # the networks of the last whole iteration (the rollout in flight is dropped)
             raise
         finally:
