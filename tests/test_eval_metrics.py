@@ -99,6 +99,22 @@ def test_pace_tells_an_overshoot_from_a_lag_that_e_pos_x_cannot():
     assert ahead.pace == pytest.approx(1.05) and behind.pace == pytest.approx(0.95)
 
 
+def test_lead_is_the_speed_ahead_of_the_reference_whatever_the_paths_length():
+    """The same 0.1 m/s ahead over 10 s: E_pos-x 100 % on a 0.1 m/s walk, 10 % on a 1 m/s walk;
+    the lead 0.1 m/s on both, and on a walk in place, where E_pos-x is undefined."""
+    seconds = (N - 1) * FRAME_DT
+    leads = {}
+    for speed in (0.1, 1.0, 0.0):
+        ref, tracked = straight_walk(speed=speed), straight_walk(speed=speed)
+        tracked.qpos[-1, 0] += 0.1 * seconds
+        leads[speed] = tracking_errors(ref, tracked)
+    assert leads[0.1].E_pos_x == pytest.approx(100.0) and leads[1.0].E_pos_x == pytest.approx(10.0)
+    assert math.isnan(leads[0.0].E_pos_x)
+    assert all(e.lead == pytest.approx(0.1) for e in leads.values())
+    ref = straight_walk()
+    assert tracking_errors(ref, perturbed(ref, along=-0.5)).lead == pytest.approx(-0.5 / seconds)
+
+
 @pytest.mark.parametrize("heading", [0.0, math.pi - 0.01])
 def test_turn_tells_left_from_right_that_e_yaw_cannot(heading):
     ref = straight_walk(heading)

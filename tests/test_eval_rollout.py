@@ -107,7 +107,8 @@ def test_report_files_round_trip_with_the_papers_row(recorded, tmp_path):
     tracked = dataclasses.replace(reference, qpos=reference.qpos + np.r_[np.zeros(7), 0.01 * np.ones(20)])
     errors = [tracking_errors(reference, tracked), tracking_errors(reference, reference, fell=True)]
     assert all(math.isnan(e.pace) for e in errors)  # a squat has no path
-    errors = [dataclasses.replace(e, pace=pace, turn=turn) for e, pace, turn in zip(errors, (1.4, 0.9), (-0.3, -0.1))]
+    errors = [dataclasses.replace(e, pace=pace, turn=turn, lead=lead)
+              for e, pace, turn, lead in zip(errors, (1.4, 0.9), (-0.3, -0.1), (0.12, -0.04))]
     results = [TrajectoryResult(i, {"depth": 0.1}, False, cause, reference.num_frames, reference.num_frames, e)
                for i, (e, cause) in enumerate(zip(errors, ("time_out", "fall")))]
     report = EvalReport("eval", {"name": "mine", "key": {"checkpoint": "x"}}, {"note": "2 references", "dataset": "d",
@@ -123,14 +124,18 @@ def test_report_files_round_trip_with_the_papers_row(recorded, tmp_path):
     assert "median 1.15, 0.90 to 1.40 over 2 references" in text and [r.errors.pace for r in back.results] == [1.4, 0.9]
     assert "median -0.200 rad; left in 0, right in 2 of 2 references" in text
     assert [r.errors.turn for r in back.results] == [-0.3, -0.1]
-    # A report written before the signed pace and turn existed still reads, those unknown.
+    assert "median +0.040 m/s, -0.040 to +0.120 over 2 references" in text
+    assert [r.errors.lead for r in back.results] == [0.12, -0.04]
+    # A report written before the signed pace, turn and lead existed still reads, those unknown.
     old = json.loads(json_path.read_text())
     for t in old["trajectories"]:
-        del t["pace"], t["turn"]
+        del t["pace"], t["turn"], t["lead"]
     (tmp_path / "old.json").write_text(json.dumps(old))
     older = read_report(tmp_path / "old.json")
-    assert all(math.isnan(r.errors.pace) and math.isnan(r.errors.turn) for r in older.results)
+    assert all(math.isnan(r.errors.pace) and math.isnan(r.errors.turn) and math.isnan(r.errors.lead)
+               for r in older.results)
     assert older.turn_summary() is None and "Turn (" not in older.markdown()
+    assert older.lead_summary() is None and "Lead (" not in older.markdown()
     (tmp_path / "bad.json").write_text('{"format": "something else"}')
     with pytest.raises(DataError, match="not an opt2skill evaluation report"):
         read_report(tmp_path / "bad.json")

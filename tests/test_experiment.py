@@ -292,7 +292,7 @@ def _report(name: str, foot_by_index: dict[int, float]) -> EvalReport:
     results = []
     for index, foot in foot_by_index.items():
         e = TrackingErrors(0.03, 5.0, 0.05, 2.0, foot, 1.0, 0.05, 0.02, float("nan"), 1.0, 100, False, pace=1.01,
-                           turn=0.1 if index % 4 == 0 else -0.1)
+                           turn=0.1 if index % 4 == 0 else -0.1, lead=0.02 + 0.01 * (index % 2))
         results.append(TrajectoryResult(index, {}, False, "time_out", 100, 100, e))
     return EvalReport("eval", {"name": name}, {"note": ""}, {}, results)
 
@@ -310,8 +310,9 @@ def test_table_pairs_to_and_ik_by_index_and_tests_human_unpaired():
                         (0, 10), 10)
     md = table.markdown()
     assert "smoke result" in md and "not available: no training references" in md and "*paper: IK-data*" in md
-    assert "| 100% of 8 | 1.01 | 2 / 6 |" in md and table.to_dict()["data"][0]["pace"]["n"] == 8  # the signed drift
+    assert "| 100% of 8 | 1.01 | +0.025 | 2 / 6 |" in md and table.to_dict()["data"][0]["pace"]["n"] == 8  # the signed drift
     assert table.to_dict()["data"][0]["turn"]["left"] == 2  # and which way the policy turned
+    assert table.to_dict()["data"][0]["lead"]["median"] == pytest.approx(0.025)  # and how fast ahead
     assert [r.report for r in table.history_rows] == [to, None]
     # Each test says which way it goes and whether TO is at or below the baseline on the claim metrics.
     assert paired["shift"]["E_ee_foot"] == pytest.approx(-1.0, abs=0.02) and paired["claim"]["met"]

@@ -15,7 +15,11 @@ along the reference's final heading over the reference path length (1 on pace, a
 the reference, below 1 behind it), which tells overshooting from lagging; and `turn` is the final
 yaw error with its sign (tracked minus reference, rad; positive: turned left, counter-clockwise seen
 from above), which tells a policy that turns one way in every walk from one that wanders
-(E_yaw = 1000 |turn| / frames).
+(E_yaw = 1000 |turn| / frames); and `lead` is the final along-heading error over the time tracked
+(m/s, > 0 ahead): how much faster than its reference the robot went. E_pos-x divides the same error
+by the path length, so a policy a constant 0.1 m/s ahead scores 50 % on a 0.2 m/s walk and 10 % on
+a 1 m/s walk; `lead` tells such an offset from a policy that is off only on slow walks, and it is
+defined for walks in place too.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from opt2skill.data.record import FRAME_FIELDS, Trajectory
+from opt2skill.data.record import FRAME_DT, FRAME_FIELDS, Trajectory
 from opt2skill.geometry import yaw_of
 
 # Name, unit and scale (from SI) of each metric, in the order of Table III then Table IV.
@@ -64,6 +68,8 @@ class TrackingErrors:
     pace: float = float("nan")
     # rad, the final yaw error with its sign (tracked - reference; > 0: turned left); E_yaw = 1000 |turn| / frames
     turn: float = float("nan")
+    # m/s, the signed along-heading final error over the time tracked (> 0: ahead of the reference)
+    lead: float = float("nan")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -93,6 +99,7 @@ def tracking_errors(
     axis_y = np.array([-np.sin(heading), np.cos(heading)])
     final_err = tracked.qpos[-1, :2] - ref.qpos[-1, :2]
     path = np.linalg.norm(np.diff(ref.qpos[:, :2], axis=0), axis=1).sum()
+    lead = final_err @ axis_x / ((n - 1) * FRAME_DT)
     ahead = final_err @ axis_x / path if path >= MIN_PATH_LENGTH else np.nan
     pos_x = abs(ahead)
     pos_y = abs(final_err @ axis_y) / n
@@ -113,7 +120,8 @@ def tracking_errors(
         "E_force": force_err, "E_torque": torque_err,
     }
     scaled = {name: float(value) * METRICS[name][1] for name, value in values.items()}
-    return TrackingErrors(**scaled, frames=n, fell=bool(fell), pace=float(1.0 + ahead), turn=float(turn))
+    return TrackingErrors(**scaled, frames=n, fell=bool(fell), pace=float(1.0 + ahead), turn=float(turn),
+                          lead=float(lead))
 
 
 def _ee_error(ref: Trajectory, tracked: Trajectory, names: tuple[str, ...]) -> float:

@@ -84,10 +84,10 @@ class TrajectoryResult:
         if missing:
             raise DataError(f"an evaluation report's trajectory lacks {missing}")
         values = {k: (float("nan") if d[k] is None else float(d[k])) for k in METRICS}
-        pace, turn = d.get("pace"), d.get("turn")  # absent from reports written before they existed
-        errors = TrackingErrors(**values, frames=int(d["frames"]), fell=bool(d["fell"]),
-                                pace=float("nan") if pace is None else float(pace),
-                                turn=float("nan") if turn is None else float(turn))
+        # absent from reports written before they existed
+        pace, turn, lead = (float("nan") if d.get(k) is None else float(d[k]) for k in ("pace", "turn", "lead"))
+        errors = TrackingErrors(**values, frames=int(d["frames"]), fell=bool(d["fell"]), pace=pace, turn=turn,
+                                lead=lead)
         try:
             task = {k: (float(v["value"]), str(v["unit"])) for k, v in d.get("task_metrics", {}).items()}
         except (TypeError, KeyError, ValueError, AttributeError):
@@ -146,6 +146,15 @@ class EvalReport:
         return {"median": float(np.median(turns)), "left": int((turns > 0).sum()), "right": int((turns < 0).sum()),
                 "n": len(turns)}
 
+    def lead_summary(self) -> dict[str, float] | None:
+        """Median, min, max and n of the references' leads (`metrics.TrackingErrors.lead`, m/s ahead of
+        the reference); None for a report older than the lead."""
+        leads = np.array([r.errors.lead for r in self.results])
+        leads = leads[np.isfinite(leads)]
+        if not len(leads):
+            return None
+        return {"median": float(np.median(leads)), "min": float(leads.min()), "max": float(leads.max()), "n": len(leads)}
+
     @property
     def mean_episode_length(self) -> float:
         """Mean seconds tracked before the episode ended (a reference's full length when it succeeded)."""
@@ -170,7 +179,7 @@ class EvalReport:
             "summary": {name: {"mean": s.mean, "se": s.se, "n": s.n, "unit": METRICS[name][0]} for name, s in summary.items()},
             "success_rate": self.success_rate, "mean_episode_length_s": self.mean_episode_length,
             "mean_episode_fraction": self.mean_episode_fraction, "pace": self.pace_summary(),
-            "turn": self.turn_summary(),
+            "turn": self.turn_summary(), "lead": self.lead_summary(),
             "trajectories": [r.to_dict() for r in self.results],
             "task_summary": {k: {"mean": m, "se": se, "n": n, "unit": u} for k, (m, se, n, u) in self.task_summary().items()},
             "paper": {row: {k: {"mean": m, "se": s} for k, (m, s) in values.items()} for row, values in PAPER_ROWS.items()},
@@ -218,7 +227,8 @@ class EvalReport:
             e = r.errors.as_dict()
             seen = {True: "yes", False: "no", None: "?"}[r.seen]
             rows.append([str(r.index), seen, r.cause, f"{(r.frames - 1) * FRAME_DT:.2f}",
-                         *(_num(e[m]) for m in (*TABLE_III, *TABLE_IV)), _num(r.errors.pace), _num(r.errors.turn)])
+                         *(_num(e[m]) for m in (*TABLE_III, *TABLE_IV)), _num(r.errors.pace), _num(r.errors.turn),
+                         _num(r.errors.lead)])
         return rows
 
     def markdown(self) -> str:
@@ -241,6 +251,11 @@ class EvalReport:
             lines += [f"Turn (the final yaw error with its sign, tracked - reference; E_yaw with its sign, > 0 left): "
                       f"median {turn['median']:+.3f} rad; left in {turn['left']}, right in {turn['right']} of "
                       f"{turn['n']} references.", ""]
+        lead = self.lead_summary()
+        if lead is not None:
+            lines += [f"Lead (the final along-heading error over the time tracked, m/s ahead of the reference; E_pos-x "
+                      f"without the division by the path length): median {lead['median']:+.3f} m/s, "
+                      f"{lead['min']:+.3f} to {lead['max']:+.3f} over {lead['n']} references.", ""]
         lines += ["## Contact force, torque, success (Table IV quantities)", ""]
         lines += _markdown_table(["policy", *(header(m) for m in TABLE_IV), "success (falls counted)", "mean episode length"],
                                  self.extra_rows())
@@ -252,7 +267,7 @@ class EvalReport:
                                      [[self.title(), *(mean_se(Summary(m, se, n)) for m, se, n, _ in task.values())]])
         lines += ["", "## Per reference", ""]
         lines += _markdown_table(["index", "trained on", "end", "tracked (s)", *(label(m) for m in (*TABLE_III, *TABLE_IV)), "pace",
-                                  "turn (rad)"],
+                                  "turn (rad)", "lead (m/s)"],
                                  self.trajectory_rows())
         return "\n".join(lines) + "\n"
 

@@ -60,7 +60,7 @@ class Table3:
                 s = r.report.summary()
                 out.update(summary={m: {"mean": s[m].mean, "se": s[m].se, "n": s[m].n} for m in TABLE_III},
                            success_rate=r.report.success_rate, pace=r.report.pace_summary(),
-                           turn=r.report.turn_summary(),
+                           turn=r.report.turn_summary(), lead=r.report.lead_summary(),
                            references=r.report.references.get("note"),
                            policy=r.report.policy.get("description"))
             return out
@@ -72,7 +72,7 @@ class Table3:
 
     def markdown(self) -> str:
         head = ["category", "method", *(header(m) for m in TABLE_III), "success", "pace (median)",
-                "turns (left / right)"]
+                "lead (m/s, median)", "turns (left / right)"]
         lines = [f"# Table III ({self.setting} setting): tracking on held-out references (mean ± SE; lower is better)", "",
                  f"Rollouts with {self.condition}.", ""]
         if self.setting != "full":
@@ -84,11 +84,13 @@ class Table3:
                 lines.append("| " + " | ".join([category, r.name, *_cells(r)]) + " |")
                 if r.paper is not None:
                     lines.append("| " + " | ".join(["", f"*paper: {r.name}*", *(f"*{mean_se(r.paper[m])}*" for m in TABLE_III),
-                                                    "", "", ""]) + " |")
+                                                    "", "", "", ""]) + " |")
         lines += ["", f"Paper rows (italics): {paper.SOURCE}; Agility's simulator, not this code's results. Pace: the "
                   "distance covered along the reference's heading over its path length, E_pos-x with its sign (1 on "
-                  "pace, above 1 ahead); turns: how many references the policy ended turned left and right of "
-                  "(the sign of the final yaw error, E_yaw's sign); neither is a paper metric.", ""]
+                  "pace, above 1 ahead); lead: the same final error over the time tracked (m/s ahead of the "
+                  "reference), which a slow walk's short path does not magnify as it does E_pos-x; turns: how many "
+                  "references the policy ended turned left and right of (the sign of the final yaw error, E_yaw's "
+                  "sign); none of the three is a paper metric.", ""]
         if self.p_values:
             p_head = ["comparison", "test", "pairs / sizes", *(label(m) for m in TABLE_III)]
             lines += ["p-values of TO against each baseline ('-' where undefined):", "",
@@ -107,12 +109,13 @@ class Table3:
 
 def _cells(r: Row) -> list[str]:
     if r.report is None:
-        return ["-"] * len(TABLE_III) + [f"not available: {r.missing}", "-", "-"]
+        return ["-"] * len(TABLE_III) + [f"not available: {r.missing}", "-", "-", "-"]
     s = r.report.summary()
     n = len(r.report.results)
-    pace, turn = r.report.pace_summary(), r.report.turn_summary()
+    pace, turn, lead = r.report.pace_summary(), r.report.turn_summary(), r.report.lead_summary()
     return [*(mean_se(s[m]) for m in TABLE_III), f"{r.report.success_rate:.0%} of {n}",
             "-" if pace is None else f"{pace['median']:.2f}",
+            "-" if lead is None else f"{lead['median']:+.3f}",
             "-" if turn is None else f"{turn['left']} / {turn['right']}"]
 
 
