@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from opt2skill.data.checks import frame_dynamics_residual, site_poses, touchdown_frames
+from opt2skill.errors import ConfigError
 from opt2skill.model import load_robot
 from opt2skill.tasks import get_task
 from opt2skill.trajopt.solver import solve_shooting
@@ -147,3 +148,26 @@ def test_a_stricter_acceptance_takes_shorter_steps(robot):
         steps[accept] = solve_shooting(problem.shooting, settings, max_iter=25).steps
     first = next(i for i, (default, strict) in enumerate(zip(steps[0.1], steps[0.9])) if default != strict)
     assert steps[0.9][first] < steps[0.1][first], (first, steps)
+
+
+def test_a_window_ends_when_a_full_step_leaves_its_committed_part_in_place(robot):
+    """`solver.commit_tol`: the solve follows the default one iteration for iteration, and ends at the
+    first full step after which no committed state moved by more than the tolerance; without the
+    setting the same solve goes on to its cap (docs/trajopt.md, "Speed: stopping on the committed part")."""
+    task = get_task("walk", robot, {"steps": 2, "duration": 1.5})
+    plan = task.plan(PARAMS)
+    problem = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
+    free = dataclasses.replace(task.config.solver, stall_tol=0.0)
+    settling = dataclasses.replace(free, commit_tol=0.01)
+    committed = 15
+    full = solve_shooting(problem.shooting, free, max_iter=40, committed=committed)
+    settled = solve_shooting(problem.shooting, settling, max_iter=40, committed=committed)
+    k = settled.iterations
+    assert (full.stop_reason, full.iterations) == ("max_iter", 40)
+    assert settled.stop_reason == "settled" and 1 < k < 40 and settled.steps[-1] == 1.0
+    assert settled.costs == full.costs[:k]
+    # the stop's own condition, on the default solve's iterations k - 1 and k
+    before, at = (solve_shooting(problem.shooting, free, max_iter=i).xs[1:committed + 1] for i in (k - 1, k))
+    assert np.abs(at - before).max() <= 0.01
+    with pytest.raises(ConfigError, match="solver.commit_tol must be >= 0"):
+        get_task("walk", robot, {"solver.commit_tol": -1.0})

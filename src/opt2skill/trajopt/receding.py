@@ -89,7 +89,7 @@ def solve_receding(
         sub = _window(xs[s], models[s:e], terminal, datas[s:e])
         init_x, init_u, feasible = feedback_rollout(sub, guess_x[s : e + 1], guess_u[s:e], guess_K[s:e])
         cap = first_max_iter if (s == 0 and first_max_iter) else max_iter
-        sol = solve_shooting(sub, settings, init_x, init_u, cap, is_feasible=feasible)
+        sol = solve_shooting(sub, settings, init_x, init_u, cap, is_feasible=feasible, committed=c - s)
         if sol.gap > CLOSE_GAPS_ABOVE:  # stopped before a full step closed its gaps: commit a rollout
             closed += 1
             open_gap = max(open_gap, sol.gap)
@@ -119,7 +119,7 @@ def solve_receding(
         K=K,
         cost=float(shooting_cost),
         iterations=iterations,
-        converged=all(stop in ("converged", "stall") for stop in stops),
+        converged=all(stop in ("converged", "stall", "settled") for stop in stops),
         stop_reason=f"{windows} windows: " + ", ".join(sorted(set(stops)))
         + (f"; {closed} closed by rollout (largest gap {open_gap:.2g})" if closed else ""),
         seconds=seconds,

@@ -69,6 +69,10 @@ class SolverSettings:
     # A trial step is accepted when the cost falls by at least this fraction of the decrease the
     # quadratic model predicts for it (Crocoddyl's th_acceptStep, an Armijo condition); 0.1 is Crocoddyl's.
     accept_step: float = 0.1
+    # Receding windows: a window's solve also ends, once its gaps are closed, when a full step moved no
+    # state of the part it commits by more than this (max abs over the committed nodes' states): the
+    # part beyond the commit is solved again by the next window. 0: off (docs/trajopt.md).
+    commit_tol: float = 0.0
     completion: str = "track"  # 200 Hz frames: "track" (acceleration tracking, exact), "rollout" (feedback law) or "interpolate"
     track_bandwidth: float = 30.0  # rad/s, the PD of the "track" completion (Kp = bandwidth^2, Kd = 2 bandwidth)
     keep_gains: bool = False  # store the feedback gains K with the knots (traj.knots)
@@ -89,6 +93,7 @@ class SolverSettings:
         require(0 < self.reg_increase_below < 0.5, "solver.reg_increase_below must be in (0, 0.5): longer steps lower the regularization")
         require(0 <= self.accept_step < 1, "solver.accept_step must be in [0, 1): the share of the predicted decrease a step must reach")
         require(self.stop > 0, "solver.stop must be > 0")
+        require(self.commit_tol >= 0, "solver.commit_tol must be >= 0 (0: off)")
         require(self.stall_window >= 1 and self.stall_tol >= 0, "solver.stall_window >= 1 and stall_tol >= 0")
         require(self.integrator in INTEGRATORS, f"solver.integrator must be one of {INTEGRATORS}, got '{self.integrator}'")
         require(self.track_bandwidth > 0, "solver.track_bandwidth must be > 0 rad/s")

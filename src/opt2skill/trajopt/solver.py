@@ -50,19 +50,27 @@ class _Monitor(crocoddyl.CallbackAbstract):
     """Records the cost per iteration and ends the solve when it stalls (Crocoddyl checks th_stop
     right after the callbacks, and only once the trajectory is feasible)."""
 
-    def __init__(self, settings: SolverSettings):
+    def __init__(self, settings: SolverSettings, committed: int | None = None):
         super().__init__()
         self.settings = settings
         self.costs: list[float] = []
         self.steps: list[float] = []
         self.regularization: list[float] = []  # after each iteration's update
         self.stalled = False
+        self.settled = False  # the committed part stopped moving (`SolverSettings.commit_tol`)
+        # the states of the nodes a receding window keeps (x0 excluded: fixed), watched when commit_tol > 0
+        self.committed = committed if settings.commit_tol > 0 else None
+        self._last: np.ndarray | None = None
 
     def __call__(self, solver):
         cost = float(solver.cost)
         self.costs.append(cost)
         self.steps.append(float(solver.stepLength))
         self.regularization.append(float(solver.preg))
+        if self.committed and self._committed_settled(solver):
+            self.settled = True
+            solver.th_stop = np.inf
+            return
         window = self.settings.stall_window
         if len(self.costs) > window:
             before = self.costs[-1 - window]
@@ -73,6 +81,13 @@ class _Monitor(crocoddyl.CallbackAbstract):
             if before - cost <= small and expected <= 10.0 * small:
                 self.stalled = True
                 solver.th_stop = np.inf
+
+    def _committed_settled(self, solver) -> bool:
+        states = np.array(solver.xs[1 : self.committed + 1])
+        last, self._last = self._last, states
+        # a full step that barely moves them: a short step moves little far from the optimum too
+        return (last is not None and solver.isFeasible and solver.stepLength >= 1.0
+                and float(np.abs(states - last).max()) <= self.settings.commit_tol)
 
 
 def solve(
@@ -105,14 +120,16 @@ def solve_shooting(
     init_us: list[np.ndarray] | None = None,
     max_iter: int | None = None,
     is_feasible: bool = False,
+    committed: int | None = None,
 ) -> Solution:
-    """Box-FDDP on a Crocoddyl problem; `is_feasible`: the guess is a rollout (no gaps)."""
+    """Box-FDDP on a Crocoddyl problem; `is_feasible`: the guess is a rollout (no gaps); `committed`:
+    how many nodes after x0 a receding window keeps (for `SolverSettings.commit_tol`)."""
     solver = crocoddyl.SolverBoxFDDP(shooting)
     solver.alphas = [2.0**-i for i in range(settings.line_search_steps)]
     solver.th_stepInc = settings.reg_increase_below
     solver.th_acceptStep = settings.accept_step
     solver.th_stop = settings.stop
-    monitor = _Monitor(settings)
+    monitor = _Monitor(settings, committed)
     solver.setCallbacks([monitor])
     if init_xs is None:
         init_xs = [shooting.x0.copy() for _ in range(shooting.T + 1)]
@@ -132,7 +149,9 @@ def solve_shooting(
     us = [np.array(u) for u in solver.us]
     K = [np.array(k) for k in solver.K]
     gap = max((float(np.abs(f).max()) for f in solver.fs if len(f)), default=0.0)
-    if monitor.stalled:
+    if monitor.settled:
+        reason = "settled"
+    elif monitor.stalled:
         reason = "stall"
     elif done:
         reason = "converged"
