@@ -25,10 +25,9 @@ from rsl_rl.algorithms import PPO
 from opt2skill.data.atomic import dumps
 from opt2skill.envs import TrackingEnv
 from opt2skill.errors import DataError
-from opt2skill.rl import checkpoint
+from opt2skill.rl import checkpoint, processes
 from opt2skill.rl.best import judge_actor
 from opt2skill.rl.config import PPOConfig
-from opt2skill.rl import processes
 from opt2skill.rl.processes import ONE, Group
 from opt2skill.rl.run import PROGRESS_FILE, trim_progress
 from opt2skill.rl.vec_env import TrackingVecEnv

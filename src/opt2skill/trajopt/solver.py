@@ -3,7 +3,8 @@
 FDDP spends most of a cold solve taking tiny steps on barrier penalties once the cost is within a
 fraction of a percent of its final value (pitfalls.md), so besides Crocoddyl's own stopping
 criterion the solve ends when the cost fell by less than `stall_tol` (relative) over the last
-`stall_window` iterations while the trajectory is dynamically feasible (no gaps).
+`stall_window` iterations while the trajectory is dynamically feasible (no gaps); and, where
+`commit_tol` is set, a receding window's solve ends once a full step leaves the part it keeps in place.
 """
 
 from __future__ import annotations
