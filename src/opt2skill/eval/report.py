@@ -130,11 +130,7 @@ class EvalReport:
     def pace_summary(self) -> dict[str, float] | None:
         """Median, min, max and n of the references' signed paces (`metrics.TrackingErrors.pace`);
         None when no reference has one (stepping in place, or a report older than the pace)."""
-        paces = np.array([r.errors.pace for r in self.results])
-        paces = paces[np.isfinite(paces)]
-        if not len(paces):
-            return None
-        return {"median": float(np.median(paces)), "min": float(paces.min()), "max": float(paces.max()), "n": len(paces)}
+        return _median_range([r.errors.pace for r in self.results])
 
     def turn_summary(self) -> dict[str, float] | None:
         """Median of the references' signed final yaw errors (`metrics.TrackingErrors.turn`, rad) and
@@ -149,11 +145,7 @@ class EvalReport:
     def lead_summary(self) -> dict[str, float] | None:
         """Median, min, max and n of the references' leads (`metrics.TrackingErrors.lead`, m/s ahead of
         the reference); None for a report older than the lead."""
-        leads = np.array([r.errors.lead for r in self.results])
-        leads = leads[np.isfinite(leads)]
-        if not len(leads):
-            return None
-        return {"median": float(np.median(leads)), "min": float(leads.min()), "max": float(leads.max()), "n": len(leads)}
+        return _median_range([r.errors.lead for r in self.results])
 
     @property
     def mean_episode_length(self) -> float:
@@ -290,3 +282,12 @@ def _markdown_table(head: list[str], rows: list[list[str]]) -> list[str]:
     out = ["| " + " | ".join(head) + " |", "|" + "|".join(" --- " for _ in head) + "|"]
     out += ["| " + " | ".join(row) + " |" for row in rows]
     return out
+
+
+def _median_range(values: list[float]) -> dict[str, float] | None:
+    """Median, min, max and n of the finite values; None when there are none."""
+    finite = np.array(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    if not len(finite):
+        return None
+    return {"median": float(np.median(finite)), "min": float(finite.min()), "max": float(finite.max()), "n": len(finite)}
