@@ -258,6 +258,14 @@ def test_every_policy_of_an_experiment_trains_with_its_settings_options(tmp_path
         resolve("quick", {"rewards": (("speed", 1.0, None),)})
     with pytest.raises(ConfigError, match="--reward contact_force: this ablation has no reference contact forces"):
         resolve("quick", {"rewards": (("contact_force", 0.2, None),)})  # IK and human train with Pos inputs
+    # A replicate: every policy trains with its own seed on the same references, and the notes say so.
+    s = resolve("quick", {"seed": 3, "train_seed": 7})
+    assert train_request(s, tmp_path, "to", data, "pos_f_t", 10, "opt2skill experiment table3").seed == 7
+    assert "training seed 7, the references' 3 (--train-seed)" in training_note(s)
+    assert train_request(resolve("quick", {"seed": 3}), tmp_path, "to", data, "pos_f_t", 10, "x").seed == 3
+    assert "--train-seed" not in training_note(resolve("quick", {"seed": 3, "train_seed": 3}))
+    with pytest.raises(ConfigError, match="--train-seed must be >= 0, got -1"):
+        resolve("quick", {"train_seed": -1})
     with pytest.raises(ConfigError, match=r"--noise-min must be a share in \[0, 1\] .*, got 1.5"):
         resolve("quick", {"noise_min": 1.5})
     with pytest.raises(ConfigError, match="--base-position must be one of task, on, off, got 'yes'"):
@@ -272,12 +280,15 @@ def test_a_folder_of_another_experiment_or_other_files_is_refused(tmp_path):
     with pytest.raises(ConfigError, match="holds another experiment .*setting: 'quick' there, 'full' now"):
         claim_folder(tmp_path / "a", resolve("full"))
     older = json.loads((tmp_path / "a" / "experiment.json").read_text())
-    del older["device"], older["mixed_precision"], older["base_position"], older["noise_min"], older["rewards"]  # made before these
+    del older["device"], older["mixed_precision"], older["base_position"], older["noise_min"], older["rewards"], \
+        older["train_seed"]  # made before these
     # settings existed: they count as their defaults there
     (tmp_path / "a" / "experiment.json").write_text(json.dumps(older))
     claim_folder(tmp_path / "a", resolve("quick"))
     with pytest.raises(ConfigError, match=r"rewards: \[\] there, \[\['base_lin_vel', 0.3, 8.0\]\] now"):
         claim_folder(tmp_path / "a", resolve("quick", {"rewards": (("base_lin_vel", 0.3, 8.0),)}))
+    with pytest.raises(ConfigError, match="train_seed: None there, 1 now"):
+        claim_folder(tmp_path / "a", resolve("quick", {"train_seed": 1}))
     with pytest.raises(ConfigError, match="mixed_precision: False there, True now"):
         claim_folder(tmp_path / "a", resolve("quick", {"mixed_precision": True}))
     with pytest.raises(ConfigError, match="to_ablation: 'pos_f_t' there, 'pos' now"):

@@ -51,6 +51,8 @@ def table3(
                                "clips); the last --n-test files are held out."),
     to_ablation: str = typer.Option(None, "--to-ablation", help="The TO policies' inputs (pos, pos_f, pos_t, pos_f_t)."),
     seed: int = typer.Option(None, help="Seed of the training references and training; held-out references use seed + 1."),
+    train_seed: int = typer.Option(None, "--train-seed", help="Every policy's training seed instead of --seed: a "
+                                   "replicate of an experiment on the same references (copy its data/ into --out)."),
     device: str = typer.Option(None, help="Training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp on a GPU)."),
     mixed_precision: bool = typer.Option(False, "--mixed-precision", help="bf16 autocast in every policy's PPO update "
                                          "(train --mixed-precision; part of the experiment's settings)."),
@@ -77,7 +79,7 @@ def table3(
         num_envs=num_envs, histories=tuple(int(h) for h in hist) if hist is not None else None, history=history,
         stairs=_numbers(stairs, "--stairs"), slopes=_numbers(slopes, "--slopes"), sweep_trials=sweep_trials,
         sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
-        workers=workers, device=device, mixed_precision=mixed_precision or None, base_position=base_position,
+        train_seed=train_seed, workers=workers, device=device, mixed_precision=mixed_precision or None, base_position=base_position,
         noise_min=noise_min, rewards=tuple(parse_reward(text) for text in reward) if reward else None))
     terminate_as_interrupt()  # a kill checkpoints the trainings in flight; the same command resumes
     run_table3(settings, out, progress=not quiet)

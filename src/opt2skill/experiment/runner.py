@@ -64,11 +64,17 @@ def train_request(s: Any, out: Path, key: str, data: dict[str, Any], ablation: s
     from opt2skill.rl import session
 
     return session.TrainRequest(dataset=Path(data["dataset"]), out=run_dir(out, key), steps=s.train_steps,
-                                num_envs=s.num_envs, history=history, ablation=ablation, seed=s.seed, command=command,
+                                num_envs=s.num_envs, history=history, ablation=ablation, seed=training_seed(s), command=command,
                                 device=s.device, threads=threads, mixed_precision=s.mixed_precision,
                                 base_position=getattr(s, "base_position", "task"),
                                 noise_min=getattr(s, "noise_min", 1.0),
                                 rewards=tuple(tuple(change) for change in getattr(s, "rewards", ())))
+
+
+def training_seed(s: Any) -> int:
+    """Every policy's training seed: the settings' `train_seed` where they have one, else their `seed`."""
+    train_seed = getattr(s, "train_seed", None)
+    return s.seed if train_seed is None else train_seed
 
 
 def training_note(s: Any) -> str:
@@ -76,6 +82,8 @@ def training_note(s: Any) -> str:
     the base-position term, each world's own share of the observation noise, reward terms changed
     ("" when none)."""
     parts = []
+    if training_seed(s) != s.seed:
+        parts.append(f"training seed {training_seed(s)}, the references' {s.seed} (--train-seed)")
     if s.mixed_precision:
         parts.append("PPO updates in bf16 autocast (--mixed-precision)")
     if getattr(s, "base_position", "task") != "task":
@@ -91,7 +99,7 @@ def training_note(s: Any) -> str:
 
 def train_policy(s: Any, out: Path, key: str, data: dict[str, Any], ablation: str, history: int, command: str,
                  progress: bool, threads: int | None = None) -> dict[str, Any]:
-    """A policy on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed, device,
+    """A policy on the dataset of finished data step `data` (`s`: train_steps, num_envs, seed or train_seed, device,
     mixed_precision and, where the settings have them, distill_steps, base_position, noise_min and rewards), into OUT/runs/KEY; resumes from
     the run's newest checkpoint. PPO from scratch, or after distilling the optimizer's feedback expert
     when `s.distill_steps` > 0 (rl.distill_session). `threads`: physics and torch threads (None: every core)."""

@@ -67,6 +67,7 @@ class ExperimentSettings(Settings):
     sweep_start: float = 1.0  # m from the start to the terrain
     yaw_range: float = 25.0  # degrees
     seed: int = 0  # training references' seed; held-out ones use seed + 1
+    train_seed: int | None = None  # every policy's training seed (None: `seed`): a replicate on the same references
     workers: int = 0  # generation processes, and policies trained at once on a CPU (0: every core)
     human: str | None = None  # folder of AMASS .npz / BVH clips; None: constructed clips
     device: str = "cpu"  # training physics: cpu (C MuJoCo) or cuda (MuJoCo Warp), as `train --device`
@@ -94,6 +95,8 @@ class ExperimentSettings(Settings):
             problems.append(f"--train-steps must be >= 1 and --num-envs in [1, 4096], got {self.train_steps}, {self.num_envs}")
         if not 1.0 <= self.duration <= 60.0 or not 1.0 <= self.human_duration <= 60.0:
             problems.append(f"--duration and --human-duration must be in [1, 60] s, got {self.duration}, {self.human_duration}")
+        if self.train_seed is not None and self.train_seed < 0:
+            problems.append(f"--train-seed must be >= 0, got {self.train_seed}")
         if self.sweep_trials < 1:
             problems.append(f"--sweep-trials must be >= 1, got {self.sweep_trials}")
         if self.history not in self.histories:
