@@ -79,8 +79,8 @@ def table3(
         num_envs=num_envs, histories=tuple(int(h) for h in hist) if hist is not None else None, history=history,
         stairs=_numbers(stairs, "--stairs"), slopes=_numbers(slopes, "--slopes"), sweep_trials=sweep_trials,
         sweep_start=sweep_start, human=str(human) if human is not None else None, to_ablation=to_ablation, seed=seed,
-        train_seed=train_seed, workers=workers, device=device, mixed_precision=mixed_precision or None, base_position=base_position,
-        noise_min=noise_min, rewards=tuple(parse_reward(text) for text in reward) if reward else None))
+        train_seed=train_seed, workers=workers, device=device, mixed_precision=mixed_precision or None,
+        base_position=base_position, noise_min=noise_min, rewards=tuple(parse_reward(text) for text in reward) if reward else None))
     terminate_as_interrupt()  # a kill checkpoints the trainings in flight; the same command resumes
     run_table3(settings, out, progress=not quiet)
 

@@ -64,7 +64,8 @@ def train_request(s: Any, out: Path, key: str, data: dict[str, Any], ablation: s
     from opt2skill.rl import session
 
     return session.TrainRequest(dataset=Path(data["dataset"]), out=run_dir(out, key), steps=s.train_steps,
-                                num_envs=s.num_envs, history=history, ablation=ablation, seed=training_seed(s), command=command,
+                                num_envs=s.num_envs, history=history, ablation=ablation, seed=training_seed(s),
+                                command=command,
                                 device=s.device, threads=threads, mixed_precision=s.mixed_precision,
                                 base_position=getattr(s, "base_position", "task"),
                                 noise_min=getattr(s, "noise_min", 1.0),
