@@ -208,6 +208,10 @@ def test_bad_setting_is_one_clear_error(tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "history 3 (--history) must be one of --histories [0, 5, 10, 15]" in r.stderr, r.stderr
     assert not (tmp_path / "y").exists()
+    r = subprocess.run([CLI, "experiment", "table3", "--train-seed", "-1", "--out", str(tmp_path / "z")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stderr.strip() == "error: --train-seed must be >= 0, got -1", r.stderr
+    assert not (tmp_path / "z").exists()
 
 
 def test_the_data_rows_train_at_the_chosen_history_and_the_notes_say_so(tmp_path):
