@@ -7,7 +7,7 @@ PYTHON ?= $(shell command -v python3.11 2>/dev/null || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.opt2skill-installed
-TEST_STAMP := $(VENV)/.opt2skill-gpu-extra
+GPU_EXTRA_STAMP := $(VENV)/.opt2skill-gpu-extra
 TORCH_VERSION := 2.13.0
 TORCH_PIP_ARGS ?=
 PYTEST_ARGS ?=
@@ -17,7 +17,7 @@ PYTEST_ARGS ?=
 demo: $(STAMP)
 	$(BIN)/opt2skill demo
 
-test: $(STAMP) $(TEST_STAMP)
+test: $(STAMP) $(GPU_EXTRA_STAMP)
 	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -n 2 $(PYTEST_ARGS)
 
 install: $(STAMP)
@@ -39,9 +39,9 @@ $(STAMP): pyproject.toml
 # The tests also install the GPU backend's extra: its equivalence with C MuJoCo runs on Warp's CPU
 # device (tests/test_sim_warp.py), so the GPU path is tested on machines without a GPU. `make demo`
 # and `make install` leave it out (about 400 MB; docs/dependencies.md).
-$(TEST_STAMP): $(STAMP)
+$(GPU_EXTRA_STAMP): $(STAMP)
 	$(BIN)/python -m pip install --quiet -e ".[gpu]"
-	@touch $(TEST_STAMP)
+	@touch $(GPU_EXTRA_STAMP)
 
 bench: $(STAMP)
 	@for script in $(wildcard benchmarks/*.py); do echo "== $$script"; OMP_NUM_THREADS=1 $(BIN)/python $$script || exit 1; done
