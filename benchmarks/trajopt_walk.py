@@ -28,7 +28,9 @@ solver's own levers"):
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --against solver.reg_increase_below=0.2
 
 `--against-python-replay` solves each walk once and validates it with the compiled feedback replay
-and with the Python one, in alternating order.
+and with the Python one, in alternating order. `--against-own-datas` solves every walk with the
+matched nodes of one structure sharing one differential data (the default) and with a data per node
+(the same walks to the bit; docs/trajopt.md, "The node loop is memory-bound").
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ from opt2skill.data.validate import ValidationConfig, validate  # noqa: E402
 from opt2skill.errors import SolverError  # noqa: E402
 from opt2skill.model import load_robot  # noqa: E402
 from opt2skill.tasks import get_task  # noqa: E402
-from opt2skill.trajopt import costs, integrator, native  # noqa: E402
+from opt2skill.trajopt import costs, integrator, native, phases  # noqa: E402
 from opt2skill.trajopt.config import parse_value  # noqa: E402
 
 
@@ -155,6 +157,17 @@ class Tally:
 
 
 @contextlib.contextmanager
+def own_datas():
+    """Problems built inside give every matched node its own differential data (no shared scratch)."""
+    original = phases.share_scratch
+    phases.share_scratch = lambda *args: None
+    try:
+        yield
+    finally:
+        phases.share_scratch = original
+
+
+@contextlib.contextmanager
 def uncompiled(*modules):
     """Problems built (and walks validated) inside use the Python or Crocoddyl version of the compiled
     parts that these modules would use (`integrator`: the matched integrator, `costs`: the barrier
@@ -181,15 +194,18 @@ def main() -> None:
     parser.add_argument("--against-python-replay", action="store_true",
                         help="validate each solved walk with the compiled feedback replay and with the Python one, "
                              "in alternating order (the solve once)")
+    parser.add_argument("--against-own-datas", action="store_true",
+                        help="solve each walk with the matched nodes sharing a scratch data per structure and with "
+                             "a data per node, in alternating order")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a walk config override (dotted key, number or true/false), repeatable")
     parser.add_argument("--against", action="append", default=[], metavar="KEY=VALUE",
                         help="solve each walk also with this override (repeatable), in alternating order")
     args = parser.parse_args()
     if sum(map(bool, (args.against, args.against_python, args.against_crocoddyl_barriers,
-                      args.against_python_replay))) > 1:
-        parser.error("--against, --against-python, --against-crocoddyl-barriers and --against-python-replay compare "
-                     "one thing at a time: give one of them")
+                      args.against_python_replay, args.against_own_datas))) > 1:
+        parser.error("--against, --against-python, --against-crocoddyl-barriers, --against-python-replay and "
+                     "--against-own-datas compare one thing at a time: give one of them")
 
     robot = load_robot("digit")
     overrides = dict(_override(item) for item in args.set)
@@ -201,38 +217,41 @@ def main() -> None:
           f"load average {_load()}" + (f", overrides {overrides}" if overrides else ""))
     for flag, asked in (("--against-python", args.against_python),
                         ("--against-crocoddyl-barriers", args.against_crocoddyl_barriers),
-                        ("--against-python-replay", args.against_python_replay)):
+                        ("--against-python-replay", args.against_python_replay),
+                        ("--against-own-datas", args.against_own_datas)):
         if asked and native.load() is None:
             parser.error(f"{flag} needs the compiled parts: {native.unavailable_reason()}")
     print(f"compiled parts (matched integrator, barrier costs): "
           + ("yes" if native.load() is not None else f"no ({native.unavailable_reason()})"))
-    # (label, task, which compiled parts are left out) of each way a walk is solved
-    variants = [("", task, ())]
+    # (label, task, the context it is solved in) of each way a walk is solved
+    variants = [("", task, uncompiled)]
     if args.against_python:
-        variants = [("compiled", task, ()), ("python", task, (integrator,))]
+        variants = [("compiled", task, uncompiled), ("python", task, lambda: uncompiled(integrator))]
     if args.against_crocoddyl_barriers:
-        variants = [("compiled barriers", task, ()), ("crocoddyl barriers", task, (costs,))]
+        variants = [("compiled barriers", task, uncompiled), ("crocoddyl barriers", task, lambda: uncompiled(costs))]
+    if args.against_own_datas:
+        variants = [("shared scratch", task, uncompiled), ("own datas", task, own_datas)]
     if args.against:
         against = dict(_override(item) for item in args.against)
-        variants = [("default", task, ()),
-                    ("against", get_task("walk", robot, {**GAINS, **overrides, **against}), ())]
+        variants = [("default", task, uncompiled),
+                    ("against", get_task("walk", robot, {**GAINS, **overrides, **against}), uncompiled)]
         print(f"against: {against}")
     if args.against_python_replay:
-        variants = [("compiled replay", task, ()), ("python replay", task, (replay,))]
+        variants = [("compiled replay", task, uncompiled), ("python replay", task, lambda: uncompiled(replay))]
     tallies = {label: Tally() for label, _, _ in variants}
     for index in range(args.n):
         params = space.sample(args.seed, index)
         if args.against_python_replay:  # one solve, validated both ways
-            (first, _, left_first), (second, _, left_second) = variants if index % 2 == 0 else variants[::-1]
-            with uncompiled(*left_first):
+            (first, _, context_first), (second, _, context_second) = variants if index % 2 == 0 else variants[::-1]
+            with context_first():
                 solved = tallies[first].walk(robot, task, config, index, params, args.seed, first)
             if solved is not None:
-                with uncompiled(*left_second):
+                with context_second():
                     tallies[second].check(robot, task, config, index, params, second, *solved)
             continue
         order = variants if index % 2 == 0 else variants[::-1]  # neither always runs first
-        for label, solver_task, left_out in order:
-            with uncompiled(*left_out):
+        for label, solver_task, context in order:
+            with context():
                 tallies[label].walk(robot, solver_task, config, index, params, args.seed, label)
     for label, tally in tallies.items():
         tally.report(args.n, label)

@@ -167,6 +167,55 @@ def test_a_walk_solves_to_the_same_plan_with_either(walk, monkeypatch):
     assert fast.cost == pytest.approx(slow.cost, rel=1e-6)
 
 
+@needs_compiler
+def test_nodes_sharing_a_scratch_solve_to_the_same_plan_to_the_bit(walk, monkeypatch):
+    """The compiled matched nodes of one structure evaluate their contact dynamics and costs in one
+    shared data (the node loop then runs in cache): the same receding solve, the same knots (their
+    contact forces read node by node, each just evaluated) and the same gains as with a data per node."""
+    task, plan, _ = walk
+    from opt2skill.trajopt import phases
+    from opt2skill.trajopt.extract import knots
+    from opt2skill.trajopt.receding import solve_receding
+    from opt2skill.trajopt.skills.stride_guess import StrideGuess
+    from opt2skill.trajopt.solver import riccati_gains
+
+    problem = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
+    running = [m for m in problem.shooting.runningModels if isinstance(m, native.load().MatchedEulerModel)]
+    assert running and all(m.shares_data for m in running)
+    assert 2 <= len(task.builder._scratch) < len(running) / 4  # a few structures: stance, each swing, ...
+
+    def solve():
+        built = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
+        sol = solve_receding(built, task.config.solver, window=0.6, commit=0.3, max_iter=6, first_max_iter=10,
+                             extend=StrideGuess(built, plan.context))
+        return sol, knots(built, sol, keep_gains=False), riccati_gains(built.shooting, sol.xs, sol.us, 1e-6)
+
+    shared, shared_knots, shared_gains = solve()
+    monkeypatch.setattr(phases, "share_scratch", lambda *args: None)
+    own, own_knots, own_gains = solve()
+    assert not any(m.shares_data for m in task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03,
+                                                             integrator="matched").shooting.runningModels
+                   if isinstance(m, native.load().MatchedEulerModel))
+    assert shared.iterations == own.iterations > 10 and shared.cost == own.cost
+    np.testing.assert_array_equal(shared.xs, own.xs)
+    assert np.abs(shared_knots["contact_force"]).max() > 100.0  # the feet carry the robot
+    for key in own_knots:
+        np.testing.assert_array_equal(shared_knots[key], own_knots[key])
+    for mine, theirs in zip(shared_gains, own_gains, strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+
+
+@needs_compiler
+def test_a_scratch_of_another_kind_of_model_is_refused(walk):
+    _, _, problem = walk
+    node = next(m for m in problem.shooting.runningModels if isinstance(m, native.load().MatchedEulerModel))
+    state = node.differential.state
+    free = crocoddyl.DifferentialActionModelFreeFwdDynamics(
+        state, crocoddyl.ActuationModelFloatingBase(state), crocoddyl.CostModelSum(state, node.nu))
+    with pytest.raises(ValueError, match="kind of differential model"):
+        node.share_differential_data(free.createData())
+
+
 def test_a_failed_build_is_one_reason_and_the_python_model_takes_over(tmp_path):
     """No compiler: `load()` gives None with the reason, `python -m opt2skill.trajopt.native` exits 1
     with one line naming it, and the optimizer builds the Python model."""

@@ -30,14 +30,14 @@ from opt2skill.trajopt.solver import Solution
 
 def knots(problem: Problem, solution: Solution, keep_gains: bool) -> dict[str, np.ndarray]:
     shooting = problem.shooting
-    shooting.calc(list(solution.xs), solution.us)
     running = problem.nodes[:-1]
     n, nc = len(running), len(problem.contact_names)
     u = np.zeros((n, problem.nu))
     force = np.zeros((n, nc, 6))
-    for k, (node, data) in enumerate(zip(running, shooting.runningDatas)):
+    for k, (node, model, data) in enumerate(zip(running, shooting.runningModels, shooting.runningDatas)):
         if node.kind == "running":
             u[k] = solution.us[k]
+        model.calc(data, solution.xs[k], solution.us[k])  # just before the read: nodes may share a scratch
         contact_wrenches(data, problem, node.contacts, force[k])
     out = {
         "time": np.array([node.time for node in problem.nodes]),

@@ -289,7 +289,6 @@ def interpolate(coarse: Problem, solution: Solution) -> Frames:
     pm = shooting.runningModels[0].state.pinocchio
     nq = pm.nq
     xs = solution.xs
-    shooting.calc(list(xs), solution.us)
     count = int(round(coarse.duration / FRAME_DT)) + 1
     frames = _empty_frames(coarse, nq, pm.nv, count)
     running = [i for i, n in enumerate(coarse.nodes) if n.kind == "running"]
@@ -302,7 +301,9 @@ def interpolate(coarse: Problem, solution: Solution) -> Frames:
         node = coarse.nodes[k]
         x = _interpolate_state(pm, xs[k], xs[k + 1], (t - node.time) / node.dt)
         frames.q[frame], frames.v[frame], frames.tau[frame] = x[:nq], x[nq:], solution.us[k]
-        contact_wrenches(shooting.runningDatas[k], coarse, node.contacts, frames.wrench[frame])
+        data = shooting.runningDatas[k]
+        shooting.runningModels[k].calc(data, xs[k], solution.us[k])  # nodes may share a scratch
+        contact_wrenches(data, coarse, node.contacts, frames.wrench[frame])
         frames.active[frame] = _active(coarse, node.contacts)
     last, u_last = coarse.nodes[-1], solution.us[running[-1]]
     shooting.terminalModel.calc(shooting.terminalData, xs[-1], u_last)

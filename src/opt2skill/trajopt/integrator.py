@@ -41,6 +41,35 @@ def matched_euler(differential, dt: float, substeps: int):
     return MatchedEulerModel(differential, dt, substeps, share_data=True)
 
 
+def share_scratch(model, scratch: dict, key: tuple) -> None:
+    """Let a compiled matched node evaluate its differential model in one data shared by every node
+    built with the same `key` (kept in `scratch`), so a window's node loop runs in cache (docs/trajopt.md,
+    "The node loop is memory-bound"). The key must name what the data's layout depends on besides the
+    contacts and costs (`structure` adds those): the state and the actuation. The Python model keeps its
+    own data."""
+    if not hasattr(model, "share_differential_data"):
+        return
+    key = (key, structure(model.differential))
+    if key not in scratch:
+        scratch[key] = model.differential.createData()
+    model.share_differential_data(scratch[key])
+
+
+def structure(differential) -> tuple:
+    """What a contact-dynamics data's layout depends on in its contacts and costs: each by name,
+    kind, size and the frame it refers to, and whether it is active."""
+    contacts = tuple(
+        (name, type(item.contact).__name__, item.contact.id, item.contact.nc, item.active)
+        for name, item in differential.contacts.contacts.todict().items()
+    )
+    costs = tuple(
+        (name, type(item.cost).__name__, type(item.cost.residual).__name__, item.cost.residual.nr,
+         getattr(item.cost.residual, "id", None), type(item.cost.activation).__name__, item.active)
+        for name, item in differential.costs.costs.todict().items()
+    )
+    return contacts, costs
+
+
 def compiled(model) -> bool:
     """Whether a node model is Crocoddyl C++ (its datas can be handed to a new problem); the Python
     model's data is refused there (`checkData` cannot be overridden from Python)."""

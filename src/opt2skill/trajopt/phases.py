@@ -30,7 +30,7 @@ from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.trajopt.costs import Terms
-from opt2skill.trajopt.integrator import matched_euler, single_threaded
+from opt2skill.trajopt.integrator import matched_euler, share_scratch, single_threaded
 from opt2skill.trajopt.posture import Posture
 from opt2skill.trajopt.squeeze import SqueezeActuation
 from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights
@@ -131,6 +131,7 @@ class ProblemBuilder:
         self.nu = self.actuation.nu
         self._limit_bounds = self._joint_limit_bounds()
         self._payload_states: dict = {}
+        self._scratch: dict = {}  # differential datas shared by the matched nodes of one structure
 
     def frame_id(self, contact_name: str) -> int:
         return self.robot.pin_frame_id(self.robot.config.end_effectors[contact_name])
@@ -142,6 +143,7 @@ class ProblemBuilder:
             raise ConfigError("a problem needs at least one phase")
         nodes: list[Node] = []
         models = []
+        self._scratch = {}  # a problem's nodes share scratches with each other, not with older problems'
         t = 0.0
         previous: set[str] = set()
         held: set[str] = set()
@@ -242,7 +244,9 @@ class ProblemBuilder:
         if integrator == "euler" or dt == 0.0 or (integrator == "matched" and substeps == 1):
             return crocoddyl.IntegratedActionModelEuler(dam, dt)
         if integrator == "matched":
-            return matched_euler(dam, dt, substeps)
+            model = matched_euler(dam, dt, substeps)
+            share_scratch(model, self._scratch, (tuple(sorted(phase.payload)), float(phase.squeeze)))
+            return model
         rk = {"rk2": crocoddyl.RKType.two, "rk3": crocoddyl.RKType.three, "rk4": crocoddyl.RKType.four}[integrator]
         return crocoddyl.IntegratedActionModelRK(dam, rk, dt)
 

@@ -5,6 +5,13 @@
 // 3.2.1). With time_step2_ = dt^2 (N + 1) / (2 N) instead of dt^2 it is the position update of N
 // Euler substeps with the acceleration held, which is all the matched integrator changes. Everything
 // else (velocity update, cost scaling, derivatives, data, control bounds) is Crocoddyl's own.
+//
+// Nodes of the same structure may share one differential data (`share_differential_data`): a
+// node's data then keeps only what the solver reads (xnext, cost, the derivatives), and the
+// contact dynamics and costs run in a scratch that stays in the core's cache. Looping over a
+// window's nodes, each with its own differential data, made calcDiff twice as slow as the same
+// node repeated (docs/trajopt.md); with the scratch, calcDiff first repeats the node's calc, since
+// the scratch holds whichever node was evaluated last.
 #pragma once
 
 #include <boost/python.hpp>
@@ -17,8 +24,12 @@
 namespace matched_euler {
 
 namespace bp = boost::python;
+using crocoddyl::ActionDataAbstract;
+using crocoddyl::DifferentialActionDataAbstract;
 using crocoddyl::DifferentialActionModelAbstract;
+using crocoddyl::IntegratedActionDataEuler;
 using crocoddyl::IntegratedActionModelEuler;
+using Vector = Eigen::Ref<const Eigen::VectorXd>;
 
 // Checked before the base class's constructor, which dereferences the model.
 inline std::shared_ptr<DifferentialActionModelAbstract> checked(std::shared_ptr<DifferentialActionModelAbstract> model,
@@ -40,8 +51,40 @@ class MatchedEuler : public IntegratedActionModelEuler {
   int substeps() const { return substeps_; }
   double position_dt2() const { return time_step2_; }
 
+  // Datas made from now on evaluate the differential model in `scratch`, which must be a data of a
+  // differential model of the same structure (state, actuation, contacts and costs by name and kind):
+  // the caller's promise, checked by type here and by equal results in tests/test_trajopt_native.py.
+  void share_differential_data(const std::shared_ptr<DifferentialActionDataAbstract>& scratch) {
+    if (!scratch || !differential_->checkData(scratch)) {
+      throw std::invalid_argument("share_differential_data needs a data of this node's kind of differential model");
+    }
+    scratch_ = scratch;
+  }
+  bool shares_data() const { return static_cast<bool>(scratch_); }
+
+  std::shared_ptr<ActionDataAbstract> createData() override {
+    std::shared_ptr<ActionDataAbstract> data = IntegratedActionModelEuler::createData();
+    if (scratch_) static_cast<IntegratedActionDataEuler*>(data.get())->differential = scratch_;
+    return data;
+  }
+
+  void calcDiff(const std::shared_ptr<ActionDataAbstract>& data, const Vector& x, const Vector& u) override {
+    if (shared(data)) IntegratedActionModelEuler::calc(data, x, u);
+    IntegratedActionModelEuler::calcDiff(data, x, u);
+  }
+
+  void calcDiff(const std::shared_ptr<ActionDataAbstract>& data, const Vector& x) override {
+    if (shared(data)) IntegratedActionModelEuler::calc(data, x);
+    IntegratedActionModelEuler::calcDiff(data, x);
+  }
+
  private:
+  bool shared(const std::shared_ptr<ActionDataAbstract>& data) const {
+    return scratch_ && static_cast<IntegratedActionDataEuler*>(data.get())->differential == scratch_;
+  }
+
   int substeps_;
+  std::shared_ptr<DifferentialActionDataAbstract> scratch_;
 };
 
 // Called from the module's init (module.cpp), after crocoddyl's base classes are registered.
@@ -54,7 +97,11 @@ inline void expose() {
       // Read-only: Crocoddyl's setter would reset the position factor to dt^2 without a word.
       .add_property("dt", &MatchedEuler::get_dt, "the node's time step (read-only)")
       .add_property("substeps", &MatchedEuler::substeps, "Euler substeps per node whose position update this matches")
-      .add_property("position_dt2", &MatchedEuler::position_dt2, "the position update's factor of the acceleration");
+      .add_property("position_dt2", &MatchedEuler::position_dt2, "the position update's factor of the acceleration")
+      .def("share_differential_data", &MatchedEuler::share_differential_data, bp::args("self", "scratch"),
+           "Datas made from now on evaluate the differential model in `scratch`, a data of a differential "
+           "model of the same structure; calcDiff then repeats the node's calc first.")
+      .add_property("shares_data", &MatchedEuler::shares_data, "whether new datas use a shared differential data");
 }
 
 }  // namespace matched_euler
