@@ -154,6 +154,41 @@ def test_task_config_overrides_reach_the_solve_and_the_identity(tmp_path):
         assert not (tmp_path / "x").exists()
 
 
+def _edit_recorded_settings(path: Path, edit) -> None:
+    """Rewrite a stored trajectory's provenance task settings, as another version would have made them."""
+    import json
+
+    with h5py.File(path, "r+") as f:
+        group = f[next(iter(f.keys()))]
+        provenance = json.loads(group.attrs["provenance"])
+        edit(provenance["task_config"])
+        group.attrs["provenance"] = json.dumps(provenance)
+
+
+def test_a_resume_with_other_task_settings_than_the_recorded_is_refused(tmp_path):
+    """A dataset whose trajectories were solved with other task settings (a default changed by an
+    upgrade: not in the identity, but in every trajectory's provenance) is not resumed into a mix; a
+    setting the record does not have (a field added since) does not block the resume."""
+    out = tmp_path / "squat"
+    assert cli("generate", "squat", "--n", "1", "--workers", "1", "--out", str(out), "--quiet").returncode == 0
+    stored = next((out / "trajectories").glob("*.h5"))
+    _edit_recorded_settings(stored, lambda c: c["solver"].update(reg_increase_below=0.3))
+    before = sorted(p.name for p in out.rglob("*"))
+    result = cli("generate", "squat", "--n", "2", "--workers", "1", "--out", str(out))
+    assert result.returncode == 2, result.stderr
+    assert "solved with other task settings" in result.stderr and "solver.reg_increase_below: recorded 0.3" in result.stderr
+    assert result.stderr.count("\n") == 1 and sorted(p.name for p in out.rglob("*")) == before
+
+    def older(c):  # the record of a version without this field, otherwise the same settings
+        c["solver"]["reg_increase_below"] = get_task("squat", load_robot("digit")).config.solver.reg_increase_below
+        del c["solver"]["commit_tol"]
+
+    _edit_recorded_settings(stored, older)
+    result = cli("generate", "squat", "--n", "2", "--workers", "1", "--out", str(out), "--quiet")
+    assert result.returncode == 0, result.stderr
+    assert len(list((out / "trajectories").glob("*.h5"))) + len(list((out / "rejected").glob("*.h5"))) == 2
+
+
 class _CrashOnLoad:
     """Unpickling this in a worker kills the worker process as it receives its job."""
 

@@ -4,11 +4,14 @@ The driver samples the parameters of trajectory i with `ParamSpace.sample(seed, 
 a backend (a process pool here, Ray in `ray_backend`), and writes each result as it arrives into a
 `DatasetStore` (atomic per-trajectory files). Rerunning the same command skips every index already
 recorded; a larger --n adds the missing indices; other settings into the same directory are an
-error naming the difference. Only the `Task` interface and the registry are used.
+error naming the difference, and so are task settings other than those the recorded trajectories
+were solved with (a default changed by a newer version included: they are in each trajectory's
+provenance). Only the `Task` interface and the registry are used.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from collections.abc import Iterator
@@ -20,7 +23,7 @@ from typing import Any
 from opt2skill.data.store import ACCEPTED, FAILED, REJECTED, DatasetStore, Outcome
 from opt2skill.data.summary import summarize
 from opt2skill.data.validate import ValidationConfig
-from opt2skill.errors import ConfigError
+from opt2skill.errors import ConfigError, DataError
 from opt2skill.output_paths import check_output_dir
 from opt2skill.provenance import provenance
 from opt2skill.trajopt.jobs import Job, Result, failure, run_job
@@ -54,9 +57,11 @@ def process_results(jobs: list[Job], workers: int, timeout: float | None) -> Ite
 
 
 def _parse_task(request: GenerateRequest):
-    """Robot, task, parameter space (with --set ranges) and validation config; errors before any work."""
+    """Robot, parameter space (with --set ranges), validation config and the task's resolved settings
+    (as its trajectories' provenance records them); errors before any work."""
     from opt2skill.model import load_robot
     from opt2skill.tasks import get_task
+    from opt2skill.trajopt.config import config_to_dict
 
     robot = load_robot(request.robot)
     task = get_task(request.task, robot, _overrides(request))
@@ -64,7 +69,7 @@ def _parse_task(request: GenerateRequest):
     for name, bounds in request.ranges.items():
         space.set_range(name, bounds)
     config = ValidationConfig().with_overrides(request.limits)
-    return robot, space, config
+    return robot, space, config, json.loads(json.dumps(config_to_dict(task.config)))
 
 
 def _overrides(request: GenerateRequest) -> dict[str, Any]:
@@ -77,6 +82,40 @@ def _overrides(request: GenerateRequest) -> dict[str, Any]:
     return {**request.task_config, **gains}
 
 
+def _check_same_settings(store: DatasetStore, outcomes: dict[int, Outcome], settings: dict[str, Any]) -> None:
+    """DataError unless the newest recorded trajectory was solved with these task settings: a resumed
+    dataset must not mix references of two optimizer settings, as it would after an upgrade that
+    changed a default. Settings one side does not have (a field added since, at its default, which
+    keeps the old behaviour) are not compared, nor are records without settings in their provenance."""
+    from opt2skill.data.trajfile import read_meta
+
+    solved = [o for o in outcomes.values() if o.status != FAILED]
+    if not solved:
+        return
+    newest = max(solved, key=lambda o: o.index)
+    recorded = read_meta(store.path(newest.status, newest.index)).provenance.get("task_config")
+    if recorded is None:
+        return
+    diffs = _differences(recorded, settings)
+    if diffs:
+        shown = "; ".join(diffs[:5]) + (f"; and {len(diffs) - 5} more" if len(diffs) > 5 else "")
+        raise DataError(f"{store.root} was solved with other task settings than this command's ({shown}); "
+                        "resume it with the settings it was made with (--config KEY=VALUE for each, or the "
+                        "version that made it), or use another --out")
+
+
+def _differences(recorded: dict[str, Any], current: dict[str, Any], prefix: str = "") -> list[str]:
+    """'key: recorded A, this command B' for each (dotted) key both have with other values."""
+    out = []
+    for key in sorted(set(recorded) & set(current)):
+        a, b = recorded[key], current[key]
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            out.append(f"{prefix}{key}: recorded {json.dumps(a)}, this command {json.dumps(b)}")
+    return out
+
+
 def generate(request: GenerateRequest, progress: bool = True) -> dict[str, Any]:
     """Generate (or resume) the dataset of `request`; returns its summary."""
     if request.n < 1:
@@ -85,7 +124,7 @@ def generate(request: GenerateRequest, progress: bool = True) -> dict[str, Any]:
     if request.timeout is not None and request.timeout <= 0:
         raise ConfigError(f"--timeout must be > 0 seconds, got {request.timeout:g}")
     os.environ["OMP_NUM_THREADS"] = "1"  # inherited by every worker before it loads Crocoddyl
-    robot, space, config = _parse_task(request)
+    robot, space, config, settings = _parse_task(request)
     identity = {
         "task": request.task,
         "robot": robot.name,
@@ -109,6 +148,7 @@ def generate(request: GenerateRequest, progress: bool = True) -> dict[str, Any]:
     store = DatasetStore(request.out)
     with store.lock():
         _, outcomes = store.prepare(identity, run)
+        _check_same_settings(store, outcomes, settings)
         redo = {FAILED} if request.retry_failed else set()
         todo = [i for i in range(request.n) if i not in outcomes or outcomes[i].status in redo]
         jobs = [
