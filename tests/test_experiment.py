@@ -427,3 +427,58 @@ def test_fig3_counts_falls_apart_from_success(tmp_path):
     assert stayed_up(lagging).tolist() == [100.0, 75.0]
     path = plot_fig3({"stairs": {"to": None, "human": lagging}, "slope": {}}, tmp_path / "fig3.png", "test")
     assert path.stat().st_size > 10_000
+
+
+def _replicate(folder, train_seed, foot_shift: float, skip: tuple[str, ...] = (), **changes):
+    """A Table III folder as a finished run leaves it (identity, eval steps, reports), without training:
+    TO's feet 1 cm below IK's on every reference, `foot_shift` added to every source."""
+    from opt2skill.experiment.table3 import TABLE_II_SUFFIX, eval_dir, policies
+
+    settings = resolve("quick", {"train_seed": train_seed, **changes})
+    folder.mkdir()
+    (folder / "experiment.json").write_text(json.dumps({"experiment": "table3", **settings.identity()}))
+    (folder / "steps").mkdir()
+    feet = {"to": 5.0, "ik": 6.0, "human": 8.0}
+    for key in policies(settings):
+        for suffix in ("", TABLE_II_SUFFIX):
+            name = f"{key}{suffix}"
+            if key in skip:
+                status, result = "unavailable", {"reason": "no training references"}
+            else:
+                base = feet.get(key, 5.0) + foot_shift
+                report = _report(key, {i: base + 0.1 * i for i in range(6)} if key != "human" else
+                                 {100 + i: base + 0.3 * i for i in range(5)})
+                path, _ = report.write(eval_dir(folder, name))
+                status, result = "done", {"report": str(path)}
+            (folder / "steps" / f"eval-{name}.json").write_text(json.dumps({"step": f"eval-{name}", "status": status,
+                                                                           "result": result}))
+    return folder
+
+
+def test_replicates_pool_into_one_table_paired_within_each_and_others_are_refused(tmp_path):
+    """`experiment table3-pool`: the rollouts of experiments that differ only in --train-seed make one
+    table (TO and IK paired within each replicate), with its own missing rows; a folder of other
+    settings, a seed used twice or a single folder is one clear error."""
+    def cli(*args):
+        return subprocess.run([CLI, "experiment", "table3-pool", *map(str, args)], capture_output=True, text=True,
+                              timeout=120, env={**os.environ, "COLUMNS": "250"})
+
+    a = _replicate(tmp_path / "a", None, 0.0)
+    b = tmp_path / "b"
+    _replicate(tmp_path / "b-before", 1, 0.5, skip=("hist0",)).rename(b)  # moved: its steps name the old paths
+    result = cli(a, b, "--out", tmp_path / "pooled")
+    assert result.returncode == 0, result.stderr
+    md = (tmp_path / "pooled" / "table3-pooled.md").read_text()
+    assert "| TO vs IK-data | Wilcoxon signed-rank, paired by generation index | 12 pairs |" in md
+    assert "| 12 vs 10 |" in md and "100% of 12" in md
+    assert "Pooled over 2 replicates (training seeds 0, 1;" in md and "b: no training references" in md
+    table2 = json.loads((tmp_path / "pooled" / "table3-pooled-table2.json").read_text())
+    assert table2["tests"]["TO vs IK-data"]["claim"]["met"] and table2["data"][0]["summary"]["E_ee_foot"]["n"] == 12
+    other = _replicate(tmp_path / "c", 2, 0.0, n_test=3)
+    for folders, message in (([a, other], "is not a replicate of"), ([a, a], "trained with the same seed"),
+                             ([a], "at least two replicate folders"), ([a, tmp_path / "none"], "not an experiment folder")):
+        result = cli(*folders, "--out", tmp_path / "x")
+        assert result.returncode == 2 and message in result.stderr and result.stderr.count("\n") == 1, result.stderr
+    err = cli(a, other, "--out", tmp_path / "x").stderr
+    assert "(they differ in n_test: " in err and f", 3 in {other})" in err
+    assert not (tmp_path / "x").exists()

@@ -1,5 +1,5 @@
 """`opt2skill experiment table3` (Table III, Fig. 3, the history ablation) and `table4` (Table IV, Fig. 4, the
-desk-height transfer), each one resumable command."""
+desk-height transfer), each one resumable command; `table3-pool` pools Table III over replicates."""
 
 from __future__ import annotations
 
@@ -83,6 +83,17 @@ def table3(
         base_position=base_position, noise_min=noise_min, rewards=tuple(parse_reward(text) for text in reward) if reward else None))
     terminate_as_interrupt()  # a kill checkpoints the trainings in flight; the same command resumes
     run_table3(settings, out, progress=not quiet)
+
+
+@app.command("table3-pool")
+def table3_pool(
+    folders: list[Path] = typer.Argument(..., help="Table III experiment folders that differ only in --train-seed."),
+    out: Path = typer.Option(Path("experiments/table3-pooled"), help="Folder of the pooled tables."),
+) -> None:
+    """Table III pooled over replicates (experiments differing only in their training seed)."""
+    from opt2skill.experiment.pool import pool_table3
+
+    pool_table3(list(folders), out)
 
 
 def _timing(text: str | None) -> dict[str, float] | None:
