@@ -118,7 +118,8 @@ def _check_same(recorded: list[list], rebuilt: list[list], folder: Path) -> None
     if missing or extra or moved:
         raise DataError(f"{folder} was generated again but holds other references than the experiment trained on "
                         f"({len(missing)} missing, {len(extra)} new, {len(moved)} with other joint positions, of "
-                        f"{len(old)}); this machine's solver does not reproduce them: move its data/ here too, or "
+                        f"{len(old)}); this machine's solver, or this version's task defaults (the walk's changed on "
+                        "2026-12-07: docs/trajopt.md), do not reproduce them: move its data/ here too, or "
                         "start the experiment in a new --out")
 
 

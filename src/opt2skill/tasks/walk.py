@@ -17,6 +17,7 @@ from opt2skill.tasks import TaskInfo
 from opt2skill.trajopt.config import require
 from opt2skill.trajopt.params import Param
 from opt2skill.trajopt.phase_task import Plan
+from opt2skill.trajopt.settings import SolverSettings
 from opt2skill.trajopt.skills.gait import Foothold, GaitPlan, GaitSpec, plan_gait
 from opt2skill.trajopt.skills.locomotion import LocomotionConfig, LocomotionTask, com_xy, locomotion_phases, stand_footholds
 
@@ -45,6 +46,11 @@ class WalkConfig(LocomotionConfig):
     duration: float = 14.0  # s, the whole motion (the paper's dataset)
     steps: int = 0  # number of steps; 0: as many as fit in `duration`
     thresholds: WalkThresholds = field(default_factory=WalkThresholds)
+    # A window stops once a full step leaves the part it keeps in place (`commit_tol`, 0.01): a tenth
+    # fewer iterations at the same plan cost in the median over 20 walks, all accepted (docs/trajopt.md,
+    # "Speed: stopping on the committed part"); walks made before 2026-12-07 ran every window to its cap.
+    solver: SolverSettings = field(default_factory=lambda: SolverSettings(dt=0.03, max_iter=200, reg_init=1e-4,
+                                                                          commit_tol=0.01))
 
     def check_own(self) -> None:
         super().check_own()
