@@ -45,8 +45,9 @@ def share_scratch(model, scratch: dict, key: tuple) -> None:
     """Let a compiled matched node evaluate its differential model in one data shared by every node
     built with the same `key` (kept in `scratch`), so a window's node loop runs in cache (docs/trajopt.md,
     "The node loop is memory-bound"). The key must name what the data's layout depends on besides the
-    contacts and costs (`structure` adds those): the state and the actuation. The Python model keeps its
-    own data."""
+    contacts and costs (`structure` adds those): the state and the actuation. A problem over such nodes
+    must run its node loop on one thread (`single_threaded`, as every problem here does): two threads
+    would evaluate two nodes in one scratch. The Python model keeps its own data."""
     if not hasattr(model, "share_differential_data"):
         return
     key = (key, structure(model.differential))
