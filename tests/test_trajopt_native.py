@@ -175,6 +175,7 @@ def test_nodes_sharing_a_scratch_solve_to_the_same_plan_to_the_bit(walk, monkeyp
     task, plan, _ = walk
     from opt2skill.trajopt import phases
     from opt2skill.trajopt.extract import knots
+    from opt2skill.trajopt.frames import interpolate
     from opt2skill.trajopt.receding import solve_receding
     from opt2skill.trajopt.skills.stride_guess import StrideGuess
     from opt2skill.trajopt.solver import riccati_gains
@@ -188,11 +189,13 @@ def test_nodes_sharing_a_scratch_solve_to_the_same_plan_to_the_bit(walk, monkeyp
         built = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
         sol = solve_receding(built, task.config.solver, window=0.6, commit=0.3, max_iter=6, first_max_iter=10,
                              extend=StrideGuess(built, plan.context))
-        return sol, knots(built, sol, keep_gains=False), riccati_gains(built.shooting, sol.xs, sol.us, 1e-6)
+        return (sol, knots(built, sol, keep_gains=False), riccati_gains(built.shooting, sol.xs, sol.us, 1e-6),
+                interpolate(built, sol).wrench)
 
-    shared, shared_knots, shared_gains = solve()
+    shared, shared_knots, shared_gains, shared_wrench = solve()
     monkeypatch.setattr(phases, "share_scratch", lambda *args: None)
-    own, own_knots, own_gains = solve()
+    own, own_knots, own_gains, own_wrench = solve()
+    np.testing.assert_array_equal(shared_wrench, own_wrench)  # the interpolated frames' held forces too
     assert not any(m.shares_data for m in task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03,
                                                              integrator="matched").shooting.runningModels
                    if isinstance(m, native.load().MatchedEulerModel))

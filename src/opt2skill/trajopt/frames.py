@@ -292,7 +292,8 @@ def interpolate(coarse: Problem, solution: Solution) -> Frames:
     count = int(round(coarse.duration / FRAME_DT)) + 1
     frames = _empty_frames(coarse, nq, pm.nv, count)
     running = [i for i, n in enumerate(coarse.nodes) if n.kind == "running"]
-    j = 0
+    j, evaluated = 0, None
+    wrench = np.zeros(frames.wrench.shape[1:])
     for frame in range(count - 1):
         t = frame * FRAME_DT
         while j + 1 < len(running) and coarse.nodes[running[j + 1]].time <= t + 1e-9:
@@ -301,9 +302,12 @@ def interpolate(coarse: Problem, solution: Solution) -> Frames:
         node = coarse.nodes[k]
         x = _interpolate_state(pm, xs[k], xs[k + 1], (t - node.time) / node.dt)
         frames.q[frame], frames.v[frame], frames.tau[frame] = x[:nq], x[nq:], solution.us[k]
-        data = shooting.runningDatas[k]
-        shooting.runningModels[k].calc(data, xs[k], solution.us[k])  # nodes may share a scratch
-        contact_wrenches(data, coarse, node.contacts, frames.wrench[frame])
+        if k != evaluated:  # each node evaluated just before its forces are read: nodes may share a scratch
+            data = shooting.runningDatas[k]
+            shooting.runningModels[k].calc(data, xs[k], solution.us[k])
+            contact_wrenches(data, coarse, node.contacts, wrench)
+            evaluated = k
+        frames.wrench[frame] = wrench
         frames.active[frame] = _active(coarse, node.contacts)
     last, u_last = coarse.nodes[-1], solution.us[running[-1]]
     shooting.terminalModel.calc(shooting.terminalData, xs[-1], u_last)
