@@ -18,7 +18,7 @@ from typing import Any
 from opt2skill.errors import ConfigError, DataError
 from opt2skill.eval.report import EvalReport
 from opt2skill.experiment.runner import publish_table
-from opt2skill.experiment.settings import IDENTITY_FILE, ExperimentSettings
+from opt2skill.experiment.settings import IDENTITY_FILE, ExperimentSettings, with_defaults
 from opt2skill.experiment.steps import DONE, Steps
 
 # Identity keys that may differ between replicates: the policies' training seed and nothing else.
@@ -39,8 +39,7 @@ def pool_table3(folders: list[Path], out: Path) -> dict[str, dict[str, str]]:
     from opt2skill.experiment.table import NOMINAL, TABLE_II, build_table
     from opt2skill.experiment.table3 import TABLE_II_SUFFIX, policies
 
-    seeds = [identity.get("train_seed") if identity.get("train_seed") is not None else identity["seed"]
-             for identity in identities]
+    seeds = [_training_seed(identity) for identity in identities]
     written = {}
     for suffix, condition in (("", NOMINAL), (TABLE_II_SUFFIX, TABLE_II)):
         reports, missing = {}, {}
@@ -83,10 +82,7 @@ def _identity(folder: Path) -> dict[str, Any]:
         raise DataError(f"{path} is unreadable ({exc})") from None
     if identity.get("experiment") != "table3":
         raise ConfigError(f"{folder} holds a '{identity.get('experiment')}' experiment; pooling reads table3 folders")
-    # A setting added after the folder was made counts as its default there (as a resume reads it).
-    defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(ExperimentSettings)
-                                      if f.default is not dataclasses.MISSING}))
-    return {**{k: v for k, v in defaults.items() if k not in identity}, **identity}
+    return with_defaults(identity, ExperimentSettings)  # settings added since at their defaults, as a resume reads them
 
 
 def _check_replicates(folders: list[Path], identities: list[dict[str, Any]]) -> None:
@@ -100,10 +96,13 @@ def _check_replicates(folders: list[Path], identities: list[dict[str, Any]]) -> 
             shown = ", ".join(f"{k}: {first.get(k)!r} in {folders[0]}, {identity.get(k)!r} in {folder}" for k in keys)
             raise ConfigError(f"{folder} is not a replicate of {folders[0]} (they differ in {shown}); replicates "
                               "differ only in --train-seed")
-    seeds = [identity.get("train_seed") if identity.get("train_seed") is not None else identity["seed"]
-             for identity in identities]
+    seeds = [_training_seed(identity) for identity in identities]
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"two folders trained with the same seed ({seeds}); a replicate needs its own --train-seed")
+
+
+def _training_seed(identity: dict[str, Any]) -> int:
+    return identity["train_seed"] if identity.get("train_seed") is not None else identity["seed"]
 
 
 def _settings(identity: dict[str, Any]) -> ExperimentSettings:

@@ -150,6 +150,14 @@ def resolve(setting: str, overrides: dict[str, Any] | None = None, kind: type[S]
     return settings
 
 
+def with_defaults(identity: dict[str, Any], kind: type, only: dict[str, Any] | None = None) -> dict[str, Any]:
+    """A folder's recorded identity with every setting added after it was made (of `kind`, and in
+    `only` if given) at its default, as JSON reads it back (tuples as lists)."""
+    defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(kind)
+                                      if f.default is not dataclasses.MISSING}))
+    return {**{k: v for k, v in defaults.items() if k not in identity and (only is None or k in only)}, **identity}
+
+
 def claim_folder(out: Path, settings: Settings) -> None:
     """Write OUT/experiment.json, or check that the one there is this experiment's."""
     path = Path(out) / IDENTITY_FILE
@@ -159,10 +167,7 @@ def claim_folder(out: Path, settings: Settings) -> None:
             theirs = json.loads(path.read_text())
         except ValueError as exc:
             raise DataError(f"{path} is unreadable ({exc}); it is not an experiment folder this command made") from None
-        # A setting added after that folder was made counts as its default there.
-        defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(settings)  # type: ignore[arg-type]
-                                          if f.default is not dataclasses.MISSING}))  # tuples as lists
-        theirs = {**{k: v for k, v in defaults.items() if k in mine and k not in theirs}, **theirs}
+        theirs = with_defaults(theirs, type(settings), only=mine)
         if theirs != mine:
             keys = sorted(k for k in set(theirs) | set(mine) if theirs.get(k) != mine.get(k))
             shown = ", ".join(f"{k}: {theirs.get(k)!r} there, {mine.get(k)!r} now" for k in keys)
