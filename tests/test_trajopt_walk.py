@@ -158,6 +158,7 @@ def test_a_window_ends_when_a_full_step_leaves_its_committed_part_in_place(robot
     plan = task.plan(PARAMS)
     problem = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
     assert task.config.solver.commit_tol == 0.01  # the walk's default since 2026-12-07
+    assert task.config.solver.reg_increase_below == 0.1  # likewise
     free = dataclasses.replace(task.config.solver, stall_tol=0.0, commit_tol=0.0)
     settling = dataclasses.replace(free, commit_tol=0.01)
     committed = 15

@@ -64,7 +64,7 @@ class SolverSettings:
     line_search_steps: int = 10  # step lengths tried: 1, 1/2, ..., 2^-(n-1)
     # A step no longer than this raises the regularization, as a failed line search does (Crocoddyl's
     # th_stepInc). 0.2 takes 12 to 16 % of a walk's solver work, with somewhat worse plans on a few
-    # walks (docs/trajopt.md, "Speed: the solver's own levers"); not the default.
+    # walks (docs/trajopt.md, "Speed: the solver's own levers"); the walk's default is 0.1.
     reg_increase_below: float = 0.01
     # A trial step is accepted when the cost falls by at least this fraction of the decrease the
     # quadratic model predicts for it (Crocoddyl's th_acceptStep, an Armijo condition); 0.1 is Crocoddyl's.
