@@ -457,8 +457,9 @@ def _replicate(folder, train_seed, foot_shift: float, skip: tuple[str, ...] = ()
 
 def test_replicates_pool_into_one_table_paired_within_each_and_others_are_refused(tmp_path):
     """`experiment table3-pool`: the rollouts of experiments that differ only in --train-seed make one
-    table (TO and IK paired within each replicate), with its own missing rows; a folder of other
-    settings, a seed used twice or a single folder is one clear error."""
+    table (TO and IK paired within each replicate), with its own missing rows; a replicate of the data
+    rows alone pools them and leaves out the history rows; a folder of other settings, a seed used
+    twice or a single folder is one clear error."""
     def cli(*args):
         return subprocess.run([CLI, "experiment", "table3-pool", *map(str, args)], capture_output=True, text=True,
                               timeout=120, env={**os.environ, "COLUMNS": "250"})
@@ -474,6 +475,12 @@ def test_replicates_pool_into_one_table_paired_within_each_and_others_are_refuse
     assert "Pooled over 2 replicates (training seeds 0, 1;" in md and "b: no training references" in md
     table2 = json.loads((tmp_path / "pooled" / "table3-pooled-table2.json").read_text())
     assert table2["tests"]["TO vs IK-data"]["claim"]["met"] and table2["data"][0]["summary"]["E_ee_foot"]["n"] == 12
+    data_rows_only = _replicate(tmp_path / "d", 3, 0.0, histories=(resolve("quick", {}).history,))
+    result = cli(a, data_rows_only, "--out", tmp_path / "pooled-data-rows")
+    assert result.returncode == 0, result.stderr
+    md = (tmp_path / "pooled-data-rows" / "table3-pooled.md").read_text()
+    assert "| TO vs IK-data | Wilcoxon signed-rank, paired by generation index | 12 pairs |" in md
+    assert "hist0" not in md and "History rows 0, 5, 15 are left out" in md
     other = _replicate(tmp_path / "c", 2, 0.0, n_test=3)
     for folders, message in (([a, other], "is not a replicate of"), ([a, a], "trained with the same seed"),
                              ([a], "at least two replicate folders"), ([a, tmp_path / "none"], "not an experiment folder")):

@@ -87,10 +87,11 @@ def table3(
 
 @app.command("table3-pool")
 def table3_pool(
-    folders: list[Path] = typer.Argument(..., help="Table III experiment folders that differ only in --train-seed."),
+    folders: list[Path] = typer.Argument(..., help="Table III experiment folders that differ only in --train-seed (and --histories: "
+                                                         "the history rows all of them trained are pooled)."),
     out: Path = typer.Option(Path("experiments/table3-pooled"), help="Folder of the pooled tables."),
 ) -> None:
-    """Table III pooled over replicates (experiments differing only in their training seed)."""
+    """Table III pooled over replicates (experiments differing only in their training seed and history rows)."""
     from opt2skill.experiment.pool import pool_table3
 
     pool_table3(list(folders), out)

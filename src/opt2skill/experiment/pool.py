@@ -6,6 +6,8 @@ ones, so a source's rollouts of all replicates are one sample (n = replicates x 
 TO against IK is paired by (replicate, reference), TO against human unpaired, as in one experiment.
 The paper trains one policy per source; a difference that holds over several training seeds is not
 one seed's luck. The terrain sweeps are not pooled (each replicate's Fig. 3 stands on its own).
+A replicate may train fewer history rows than the first run (`--histories 10`: the data rows alone);
+the pooled table then holds the rows every replicate has.
 """
 
 from __future__ import annotations
@@ -21,8 +23,10 @@ from opt2skill.experiment.runner import publish_table
 from opt2skill.experiment.settings import IDENTITY_FILE, ExperimentSettings, with_defaults
 from opt2skill.experiment.steps import DONE, Steps
 
-# Identity keys that may differ between replicates: the policies' training seed and nothing else.
-REPLICATE_KEYS = ("train_seed",)
+# Identity keys that may differ between replicates: the policies' training seed, and the history rows
+# (`histories`: a replicate of the data rows alone need not retrain every history; the pooled table
+# holds the histories every replicate trained).
+REPLICATE_KEYS = ("train_seed", "histories")
 # A pooled rollout's index: the reference's generation index plus this times its replicate's position,
 # so that TO and IK pair within a replicate (generation indices stay far below it).
 REPLICATE_STRIDE = 1_000_000
@@ -35,7 +39,7 @@ def pool_table3(folders: list[Path], out: Path) -> dict[str, dict[str, str]]:
         raise ConfigError(f"pooling needs at least two replicate folders, got {len(folders)}")
     identities = [_identity(folder) for folder in folders]
     _check_replicates(folders, identities)
-    settings = _settings(identities[0])
+    settings = dataclasses.replace(_settings(identities[0]), histories=_shared_histories(identities))
     from opt2skill.experiment.table import NOMINAL, TABLE_II, build_table
     from opt2skill.experiment.table3 import TABLE_II_SUFFIX, policies
 
@@ -57,6 +61,10 @@ def pool_table3(folders: list[Path], out: Path) -> dict[str, dict[str, str]]:
             f"{', '.join(map(str, folders))}): each row holds every replicate's rollouts on the same held-out "
             "references; TO and IK are paired by replicate and reference. The replicates' own tables are in "
             "their folders; the terrain sweeps are not pooled.")
+        dropped = sorted({h for identity in identities for h in identity["histories"]} - set(settings.histories))
+        if dropped:
+            table.notes.append(f"History rows {', '.join(map(str, dropped))} are left out: not every replicate "
+                               "trained them.")
         written[condition] = publish_table(table, out)
     return written
 
@@ -95,10 +103,15 @@ def _check_replicates(folders: list[Path], identities: list[dict[str, Any]]) -> 
         if keys:
             shown = ", ".join(f"{k}: {first.get(k)!r} in {folders[0]}, {identity.get(k)!r} in {folder}" for k in keys)
             raise ConfigError(f"{folder} is not a replicate of {folders[0]} (they differ in {shown}); replicates "
-                              "differ only in --train-seed")
+                              "differ only in --train-seed and --histories")
     seeds = [_training_seed(identity) for identity in identities]
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"two folders trained with the same seed ({seeds}); a replicate needs its own --train-seed")
+
+
+def _shared_histories(identities: list[dict[str, Any]]) -> tuple[int, ...]:
+    """The histories every replicate trained, in the first one's order."""
+    return tuple(h for h in identities[0]["histories"] if all(h in identity["histories"] for identity in identities))
 
 
 def _training_seed(identity: dict[str, Any]) -> int:
