@@ -30,7 +30,9 @@ solver's own levers"):
 `--against-python-replay` solves each walk once and validates it with the compiled feedback replay
 and with the Python one, in alternating order. `--against-own-datas` solves every walk with the
 matched nodes of one structure sharing one differential data (the default) and with a data per node
-(the same walks to the bit; docs/trajopt.md, "The node loop is memory-bound").
+(the same walks to the bit; docs/trajopt.md, "The node loop is memory-bound"). `--against-python-frames`
+solves every walk with the 200 Hz frames' tracking loop compiled and in Python (the same frames to
+round-off; docs/trajopt.md, "Speed: the frames' tracking loop compiled").
 """
 
 from __future__ import annotations
@@ -52,7 +54,7 @@ from opt2skill.data.validate import ValidationConfig, validate  # noqa: E402
 from opt2skill.errors import SolverError  # noqa: E402
 from opt2skill.model import load_robot  # noqa: E402
 from opt2skill.tasks import get_task  # noqa: E402
-from opt2skill.trajopt import costs, integrator, native, phases  # noqa: E402
+from opt2skill.trajopt import costs, frames, integrator, native, phases  # noqa: E402
 from opt2skill.trajopt.config import parse_value  # noqa: E402
 
 
@@ -171,7 +173,7 @@ def own_datas():
 def uncompiled(*modules):
     """Problems built (and walks validated) inside use the Python or Crocoddyl version of the compiled
     parts that these modules would use (`integrator`: the matched integrator, `costs`: the barrier
-    costs, `replay`: the feedback replay's loop)."""
+    costs, `replay`: the feedback replay's loop, `frames`: the 200 Hz frames' tracking loop)."""
     originals = [(module, module.load_native) for module in modules]
     for module, _ in originals:
         module.load_native = lambda: None
@@ -197,15 +199,18 @@ def main() -> None:
     parser.add_argument("--against-own-datas", action="store_true",
                         help="solve each walk with the matched nodes sharing a scratch data per structure and with "
                              "a data per node, in alternating order")
+    parser.add_argument("--against-python-frames", action="store_true",
+                        help="solve each walk with the 200 Hz frames' tracking loop compiled and in Python, "
+                             "in alternating order")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a walk config override (dotted key, number or true/false), repeatable")
     parser.add_argument("--against", action="append", default=[], metavar="KEY=VALUE",
                         help="solve each walk also with this override (repeatable), in alternating order")
     args = parser.parse_args()
     if sum(map(bool, (args.against, args.against_python, args.against_crocoddyl_barriers,
-                      args.against_python_replay, args.against_own_datas))) > 1:
-        parser.error("--against, --against-python, --against-crocoddyl-barriers, --against-python-replay and "
-                     "--against-own-datas compare one thing at a time: give one of them")
+                      args.against_python_replay, args.against_own_datas, args.against_python_frames))) > 1:
+        parser.error("--against, --against-python, --against-crocoddyl-barriers, --against-python-replay, "
+                     "--against-own-datas and --against-python-frames compare one thing at a time: give one of them")
 
     robot = load_robot("digit")
     overrides = dict(_override(item) for item in args.set)
@@ -218,7 +223,8 @@ def main() -> None:
     for flag, asked in (("--against-python", args.against_python),
                         ("--against-crocoddyl-barriers", args.against_crocoddyl_barriers),
                         ("--against-python-replay", args.against_python_replay),
-                        ("--against-own-datas", args.against_own_datas)):
+                        ("--against-own-datas", args.against_own_datas),
+                        ("--against-python-frames", args.against_python_frames)):
         if asked and native.load() is None:
             parser.error(f"{flag} needs the compiled parts: {native.unavailable_reason()}")
     print(f"compiled parts (matched integrator, barrier costs): "
@@ -231,6 +237,8 @@ def main() -> None:
         variants = [("compiled barriers", task, uncompiled), ("crocoddyl barriers", task, lambda: uncompiled(costs))]
     if args.against_own_datas:
         variants = [("shared scratch", task, uncompiled), ("own datas", task, own_datas)]
+    if args.against_python_frames:
+        variants = [("compiled frames", task, uncompiled), ("python frames", task, lambda: uncompiled(frames))]
     if args.against:
         against = dict(_override(item) for item in args.against)
         variants = [("default", task, uncompiled),

@@ -194,3 +194,26 @@ def test_the_compiled_feedback_replay_follows_the_python_loop(robot):
         assert not np.array_equal(qpos[-1], record.qpos[-1])  # it moved
     fell, _ = Replayer(robot, falling, CONFIG.replay).feedback_states()
     assert len(fell) < len(Replayer(robot, traj, CONFIG.replay).feedback_states()[0])  # the fall stops it early
+
+
+def test_the_validation_replays_a_model_with_the_soles_sensors_alone(robot):
+    """The validation's replays read only the soles' positions: their model computes no other sensor,
+    and every replay (windows, the whole motion open loop, under the feedback law) gives the same
+    states and figures to the bit as the model with every sensor; a sensor the robot lacks is named."""
+    from opt2skill.data.replay import Replayer
+    from opt2skill.scene.build import build_model
+
+    traj = get_task("squat", robot, {"solver.keep_gains": True}).solve({"depth": 0.1}, 0)
+    pushed = replace(traj, qvel=traj.qvel + np.r_[0.4, -0.2, 0.0, np.zeros(traj.qvel.shape[1] - 3)])
+    for record in (traj, pushed):
+        full, feet = Replayer(robot, record, CONFIG.replay), Replayer(robot, record, CONFIG.replay, all_sensors=False)
+        assert feet.layout is None and feet.model.nsensordata == 3 * len(robot.config.feet) < full.model.nsensordata
+        assert feet.windows() == full.windows() and feet.full() == full.full()
+        assert feet.feedback() == full.feedback() is not None
+        qpos, sensors = feet.feedback_states()
+        full_qpos, full_sensors = full.feedback_states()
+        np.testing.assert_array_equal(qpos, full_qpos)
+        np.testing.assert_array_equal(sensors, full_sensors[:, full.foot_columns.ravel()])
+    assert feet.windows()[0].foot_error > 0.0
+    with pytest.raises(KeyError, match="has no sensor ee_nose"):
+        build_model(robot, traj.scene, ["ee_nose"])

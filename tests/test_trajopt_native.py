@@ -285,3 +285,43 @@ def test_an_unwritable_cache_builds_in_the_temporary_folder(tmp_path, monkeypatc
     monkeypatch.setenv("OPT2SKILL_CACHE", str(blocker / "cache"))  # under a file: cannot be created
     path = native.build()
     assert path.exists() and path.is_relative_to(tempfile.gettempdir()) and not path.is_relative_to(blocker)
+
+
+@needs_compiler
+def test_the_frames_tracking_loop_gives_the_python_frames(walk, monkeypatch):
+    """The 200 Hz frames' tracking law run in C++ (`track_frames`, frames whose wrenches leave their
+    cones projected in Python) gives the Python loop's frames to round-off, projections included."""
+    task, plan, _ = walk
+    from opt2skill.trajopt import frames
+    from opt2skill.trajopt.receding import solve_receding
+    from opt2skill.trajopt.skills.stride_guess import StrideGuess
+    from opt2skill.trajopt.tracking import track
+
+    def problem():  # completing frames moves a problem's touchdown references: one problem each way
+        return task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
+
+    solved = problem()
+    solution = solve_receding(solved, task.config.solver, window=0.6, commit=0.3, max_iter=6, first_max_iter=10,
+                              extend=StrideGuess(solved, plan.context))
+    projections = []
+    project = frames.ContactCones.project
+    monkeypatch.setattr(frames.ContactCones, "project", lambda *a, **k: projections.append(1) or project(*a, **k))
+    compiled_nodes = []
+    compiled_node = frames._compiled_node
+    monkeypatch.setattr(frames, "_compiled_node", lambda *a: compiled_nodes.append(1) or compiled_node(*a))
+    compiled_problem = problem()
+    fast = track(compiled_problem, solution, task._cones(compiled_problem), task.config.solver.track_bandwidth)
+    compiled_projections = len(projections)
+    monkeypatch.setattr(frames, "load_native", lambda: None)
+    python_problem = problem()
+    slow = track(python_problem, solution, task._cones(python_problem), task.config.solver.track_bandwidth)
+    assert compiled_projections == len(projections) - compiled_projections > 0  # the same frames projected
+    assert len(compiled_nodes) == sum(n.kind == "running" for n in python_problem.nodes[:-1])
+    assert len(slow.q) == int(round(python_problem.duration / 0.005)) + 1
+    np.testing.assert_array_equal(fast.active, slow.active)
+    # Round-off through the feedback (gain @ error summed in another order): 1e-12 rad seen on a 14-s walk.
+    np.testing.assert_allclose(fast.q, slow.q, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fast.v, slow.v, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(fast.tau, slow.tau, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(fast.wrench, slow.wrench, rtol=0, atol=1e-5)
+    assert np.abs(slow.wrench).max() > 100.0 and np.abs(slow.tau).max() > 10.0

@@ -27,6 +27,7 @@ import pinocchio as pin
 from opt2skill.data.record import FRAME_DT, Trajectory
 from opt2skill.geometry import quat_error
 from opt2skill.model.convert import qpos_mj_to_pin, qvel_mj_to_pin
+from opt2skill.model.mujoco_model import sensor_slice
 from opt2skill.model.robot import Robot
 from opt2skill.model.sensors import SensorLayout
 from opt2skill.scene.build import build_model
@@ -81,18 +82,22 @@ class Replayer:
     """Replays one trajectory on one robot (single-threaded: one per validation worker)."""
 
     def __init__(self, robot: Robot, traj: Trajectory, settings: ReplaySettings = ReplaySettings(),
-                 use_compiled: bool = True):
+                 use_compiled: bool = True, all_sensors: bool = True):
         self.robot, self.traj, self.settings = robot, traj, settings
         # The feedback loop in C++ where the compiled module loads (the same states to round-off, so
         # not a setting: datasets' identities hold the settings).
         self.use_compiled = use_compiled
-        self.model = build_model(robot, traj.scene)
+        feet = [f.name for f in robot.config.feet]
+        # The replays' own figures read only the soles' positions. Without `all_sensors` the model
+        # computes nothing else (the other sensors are about a tenth of a Digit step, and change
+        # no state); `layout` then is None and the returned sensors hold the soles' positions alone.
+        self.model = build_model(robot, traj.scene, None if all_sensors else [f"ee_{n}" for n in feet])
         self.data = mujoco.MjData(self.model)
         self.nq, self.nv = robot.nq, robot.nv  # the robot's part of the scene's qpos and qvel
         self.dt = float(self.model.opt.timestep)
-        self.layout = SensorLayout.from_model(self.model, robot.config)
-        feet = [f.name for f in robot.config.feet]
-        self.foot_sensor = [self.layout.ee_names.index(n) for n in feet]
+        self.layout = SensorLayout.from_model(self.model, robot.config) if all_sensors else None
+        self.foot_columns = np.stack([np.arange(s.start, s.stop) for s in
+                                      (sensor_slice(self.model, f"ee_{n}") for n in feet)])  # (feet, 3)
         self.foot_ref = [traj.ee_names.index(n) for n in feet]
         self.damping = self.model.dof_damping[6 : self.nv].copy()
         self.frictionloss = self.model.dof_frictionloss[6 : self.nv].copy()
@@ -159,7 +164,7 @@ class Replayer:
         joint_err = qpos[upto, 7:] - _interp(tr.qpos[:, 7:], frac)[upto]
         base_err = np.linalg.norm(qpos[upto, :3] - base_ref[upto], axis=-1)
         # Sensors are evaluated before each step integrates: sensordata[i] is the state at time i dt.
-        feet = sensors[upto][:, self.layout.ee_pos[self.foot_sensor]]
+        feet = sensors[upto][:, self.foot_columns]
         feet_ref = _interp(tr.ee_pos[:, self.foot_ref], self._frac(start_frame, nstep))[upto]
         return Rollout(
             start=start_frame * FRAME_DT,

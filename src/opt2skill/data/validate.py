@@ -135,7 +135,7 @@ def kinematic_figures(robot: Robot, traj: Trajectory) -> dict[str, float | None]
 
 
 def replay_figures(robot: Robot, traj: Trajectory, settings: ReplaySettings) -> tuple[dict[str, float | None], list]:
-    replayer = Replayer(robot, traj, settings)
+    replayer = Replayer(robot, traj, settings, all_sensors=False)
     windows = replayer.windows()
     full = replayer.full()
     figures = {

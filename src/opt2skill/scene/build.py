@@ -11,6 +11,8 @@ qpos, qvel, controls and sensors keep their places at the front and a prop's fre
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 import mujoco
 
 from opt2skill.model.mujoco_model import GROUND_CONAFFINITY, GROUND_CONTYPE
@@ -24,9 +26,16 @@ PROP_RGBA = {"box": [0.75, 0.55, 0.3, 1.0], "shelf": [0.55, 0.45, 0.35, 1.0], "d
              "door": [0.5, 0.35, 0.25, 1.0]}
 
 
-def build_model(robot: Robot, scene: Scene) -> mujoco.MjModel:
-    """The robot standing in `scene`: floor or terrain, props, PD actuators and sensors."""
+def build_model(robot: Robot, scene: Scene, sensors: Collection[str] | None = None) -> mujoco.MjModel:
+    """The robot standing in `scene`: floor or terrain, props, PD actuators and sensors (only those
+    named in `sensors` when given: a model stepped for a few of them skips the cost of the rest)."""
     spec = robot.mj_spec()
+    if sensors is not None:
+        unknown = set(sensors) - {s.name for s in spec.sensors}
+        if unknown:
+            raise KeyError(f"robot '{robot.name}' has no sensor {', '.join(sorted(unknown))}")
+        for sensor in [s for s in spec.sensors if s.name not in sensors]:
+            spec.delete(sensor)
     ground = add_scene(spec, scene)
     model = robot.compile(spec)
     show_ground(model, ground)

@@ -26,6 +26,7 @@ from scipy.optimize import nnls
 
 from opt2skill.data.record import FRAME_DT
 from opt2skill.errors import SolverError
+from opt2skill.trajopt.native import load as load_native
 from opt2skill.trajopt.phases import Problem
 from opt2skill.trajopt.solver import Solution
 
@@ -117,7 +118,16 @@ def complete(coarse: Problem, cones: ContactCones | None, policy_for_node: Polic
         fine_data = fine.createData()
         policy = policy_for_node(k, fine, fine_data)
         active = _active(coarse, node.contacts)
-        for i in range(int(round(node.dt / FRAME_DT))):
+        count = int(round(node.dt / FRAME_DT))
+        native = load_native() if hasattr(policy, "compiled_law") else None
+        if native is not None:
+            x = _compiled_node(native, policy.compiled_law(x), coarse, node, fine, fine_data, cones, limit, x,
+                               frames, frame, count)
+            frames.active[frame : frame + count] = active
+            frame += count
+            u = frames.tau[frame - 1].copy()
+            continue
+        for i in range(count):
             u = np.clip(policy(i, x), -limit, limit)
             fine.calc(fine_data, x, u)
             if cones is not None and node.contacts and not cones.holds(fine_data, node.contacts, node.phase_index):
@@ -136,6 +146,48 @@ def complete(coarse: Problem, cones: ContactCones | None, policy_for_node: Polic
     contact_wrenches(terminal_data, coarse, coarse.nodes[-1].contacts, frames.wrench[frame])
     frames.active[frame] = _active(coarse, coarse.nodes[-1].contacts)
     return frames
+
+
+def _compiled_node(native, law: dict, coarse: Problem, node, fine, fine_data, cones: ContactCones | None,
+                   limit: np.ndarray, x: np.ndarray, frames: Frames, frame: int, count: int) -> np.ndarray:
+    """A node's frames under a policy's compiled law (`native.track_frames`), the frames whose
+    wrenches leave their cones projected here as in `complete`'s loop; the state after the node."""
+    nq = frames.q.shape[1]
+    x = np.array(x, dtype=float)
+    u = np.empty(len(limit))
+    limit = np.ascontiguousarray(limit, dtype=float)
+    rows = slice(frame, frame + count)
+    q, v, tau, wrench = frames.q[rows], frames.v[rows], frames.tau[rows], frames.wrench[rows]
+    arrays = {"x": x, "x_ref": law["x_ref"], "u": u, "u_k": law["u_k"], "a_plan": law["a_plan"], "gain": law["gain"],
+              "limit": limit, "q": q, "v": v, "tau": tau, "wrench": wrench}
+    cone_rows = cone_cols = 0
+    if cones is not None and node.contacts:
+        arrays["cone"], arrays["lower"], arrays["upper"] = cones.tolerant(node.contacts, node.phase_index)
+        cone_rows, cone_cols = arrays["cone"].shape
+    for key, a in arrays.items():  # read and written by address
+        if not (a.flags.c_contiguous and a.dtype == np.float64) or (key in ("x", "x_ref", "u", "q", "v", "tau", "wrench")
+                                                                     and not a.flags.writeable):
+            raise ValueError(f"frame tracking: {key} must be a contiguous float64 array")
+    pointers = {key: a.ctypes.data for key, a in arrays.items()}
+    contacts = [(name, coarse.contact_names.index(name), bool(coarse.flat[name]), int(coarse.frame_ids[name]))
+                for name in node.contacts]
+    i = 0
+    while True:
+        i = native.track_frames(fine, fine_data, law["state"], pointers, i, count, law["kp"], law["kd"], FRAME_DT,
+                                contacts, wrench.shape[1], cone_rows, cone_cols)
+        if not np.isfinite(x).all():
+            raise SolverError(f"the 200 Hz frames diverged at t = {node.time:.3f} s")
+        if i == count:
+            return x
+        # frame i's wrenches left their cones: its torque projected, as `complete`'s loop does
+        projected = np.clip(cones.project(fine, fine_data, x, u, node.contacts, limit, node.phase_index), -limit, limit)
+        fine.calc(fine_data, x, projected)
+        q[i], v[i], tau[i] = x[:nq], x[nq:], projected
+        contact_wrenches(fine_data, coarse, node.contacts, wrench[i])
+        x[:] = fine_data.xnext
+        if not np.isfinite(x).all():
+            raise SolverError(f"the 200 Hz frames diverged at t = {node.time:.3f} s")
+        i += 1
 
 
 def rollout(coarse: Problem, solution: Solution, cones: ContactCones | None = None) -> Frames:
@@ -222,12 +274,16 @@ class ContactCones:
         # a 6D contact's wrench, a 3D one's force (the rows of its cone)
         return np.concatenate([forces[n].f.vector[: 6 if self.problem.flat[n] else 3] for n in contacts])
 
-    def holds(self, data, contacts, phase: int | None = None) -> bool:
+    def tolerant(self, contacts, phase: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The rows (A, lb, ub) that `holds` checks, bounds widened by its tolerance (built once)."""
         key = (tuple(contacts), phase)
         if key not in self._tolerant:
             A, lb, ub = self._stack(contacts, phase)
-            self._tolerant[key] = (A, lb - 1e-9, ub + 1e-9)
-        A, lower, upper = self._tolerant[key]
+            self._tolerant[key] = (np.ascontiguousarray(A, dtype=float), lb - 1e-9, ub + 1e-9)
+        return self._tolerant[key]
+
+    def holds(self, data, contacts, phase: int | None = None) -> bool:
+        A, lower, upper = self.tolerant(contacts, phase)
         r = A @ self._forces(data, contacts)
         return bool((r <= upper).all() and (r >= lower).all())
 

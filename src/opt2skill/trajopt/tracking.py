@@ -39,31 +39,56 @@ def track(coarse: Problem, solution: Solution, cones: ContactCones | None, bandw
     """Frames at 5 ms following `solution` on `coarse`'s dynamics (`frames.complete`); `bandwidth`
     (rad/s) sets the PD: Kp = bandwidth^2, Kd = 2 bandwidth (critically damped)."""
     state = coarse.shooting.runningModels[0].state
-    nq, nv = state.nq, state.nv
     kp, kd = bandwidth**2, 2.0 * bandwidth
     xs, us = solution.xs, solution.us
 
     def policy_for_node(k: int, fine, fine_data) -> NodePolicy:
-        a_plan = (xs[k + 1][nq:] - xs[k][nq:]) / coarse.nodes[k].dt
-        step = np.concatenate([np.zeros(nv), a_plan * FRAME_DT])  # 5-ms Euler step with a_plan held
-        reference = {"x": xs[k].copy(), "gain": None}
-
-        def policy(i: int, x: np.ndarray) -> np.ndarray:
-            if i > 0:
-                x_ref = reference["x"]
-                step[:nv] = x_ref[nq:] * FRAME_DT + a_plan * FRAME_DT**2
-                reference["x"] = state.integrate(x_ref, step)
-            error = state.diff(x, reference["x"])  # x_ref (-) x
-            a_des = a_plan + kp * error[:nv] + kd * error[nv:]
-            fine.calc(fine_data, x, us[k])
-            if i == 0:  # the torque-to-acceleration map of the node's first frame: feedback needs it roughly
-                fine.calcDiff(fine_data, x, us[k])
-                reference["gain"] = _least_squares_gain(fine_data.differential)
-            return us[k] + reference["gain"] @ (a_des - fine_data.differential.xout)
-
-        return policy
+        return NodeTracking(state, fine, fine_data, xs[k], xs[k + 1], us[k], coarse.nodes[k].dt, kp, kd)
 
     return complete(coarse, cones, policy_for_node)
+
+
+class NodeTracking:
+    """The tracking law over one coarse node (the module's docstring), frame by frame: called with
+    (frame index within the node, state) it gives the frame's torque. `frames.complete` runs it in
+    C++ where the compiled parts load (`compiled_law`, `native/frame_tracking.hpp`: the same law and
+    order of terms), else through these calls; the two agree to round-off (tests/test_trajopt_native.py)."""
+
+    def __init__(self, state, fine, fine_data, x_k: np.ndarray, x_next: np.ndarray, u_k: np.ndarray, dt: float,
+                 kp: float, kd: float):
+        nq, nv = state.nq, state.nv
+        self.state, self.fine, self.fine_data, self.kp, self.kd = state, fine, fine_data, kp, kd
+        self.u_k = np.ascontiguousarray(u_k, dtype=float)
+        self.a_plan = (x_next[nq:] - x_k[nq:]) / dt
+        self.step = np.concatenate([np.zeros(nv), self.a_plan * FRAME_DT])  # 5-ms Euler step with a_plan held
+        self.x_ref = np.array(x_k, dtype=float)  # the reference at the current frame, stepped in place
+        self.gain: np.ndarray | None = None
+
+    def start(self, x: np.ndarray) -> None:
+        """The torque-to-acceleration map of the node's first frame (feedback needs it roughly), at
+        the node's first state `x`; leaves the node's data evaluated at (x, u_k)."""
+        self.fine.calc(self.fine_data, x, self.u_k)
+        self.fine.calcDiff(self.fine_data, x, self.u_k)
+        self.gain = _least_squares_gain(self.fine_data.differential)
+
+    def __call__(self, i: int, x: np.ndarray) -> np.ndarray:
+        nq, nv = self.state.nq, self.state.nv
+        if i > 0:
+            self.step[:nv] = self.x_ref[nq:] * FRAME_DT + self.a_plan * FRAME_DT**2
+            self.x_ref[:] = self.state.integrate(self.x_ref, self.step)
+        error = self.state.diff(x, self.x_ref)  # x_ref (-) x
+        a_des = self.a_plan + self.kp * error[:nv] + self.kd * error[nv:]
+        if i == 0:
+            self.start(x)
+        else:
+            self.fine.calc(self.fine_data, x, self.u_k)
+        return self.u_k + self.gain @ (a_des - self.fine_data.differential.xout)
+
+    def compiled_law(self, x: np.ndarray) -> dict:
+        """What the compiled loop needs, from the node's first state `x` (its gain computed here)."""
+        self.start(x)
+        return {"state": self.state, "kp": self.kp, "kd": self.kd, "x_ref": self.x_ref, "u_k": self.u_k,
+                "a_plan": np.ascontiguousarray(self.a_plan), "gain": np.ascontiguousarray(self.gain)}
 
 
 @functools.cache

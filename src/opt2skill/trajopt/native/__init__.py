@@ -1,7 +1,7 @@
 """Compiled parts of the optimizer and its validation: built once against the installed Crocoddyl
 and MuJoCo, loaded if they build.
 
-One module (`module.cpp`) with two Crocoddyl C++ classes and one function:
+One module (`module.cpp`) with two Crocoddyl C++ classes and two functions:
 - `MatchedEulerModel` (`matched_euler.hpp`), the matched integrator (`trajopt.integrator`) as an
   action model: the same step and derivatives, without Python in a node's `calc` and `calcDiff`
   (30 % and about 20 % of their time), and with datas that Crocoddyl's problems accept (the
@@ -12,7 +12,11 @@ One module (`module.cpp`) with two Crocoddyl C++ classes and one function:
 - `feedback_replay` (`feedback_replay.hpp`), the validation's 1-kHz replay under the optimizer's
   feedback law (`data.replay.Replayer.feedback_states`) as one loop around MuJoCo's `mj_step`,
   reaching the model and data through the Python objects' addresses: the Python loop spent about as
-  long around the physics as in it.
+  long around the physics as in it;
+- `track_frames` (`frame_tracking.hpp`), the 200 Hz frames' tracking law over one coarse node
+  (`trajopt.tracking.NodeTracking`, run by `frames.complete`): two evaluations of the node's 5-ms
+  model per frame, which the Python loop spent about three times as long around; frames whose
+  wrenches leave their cones come back to Python for their projection.
 
 It is compiled on first use with the C++ compiler of the machine (`$CXX`, else `c++`) against the
 headers that the pinned wheels ship (crocoddyl, pinocchio, boost, mujoco; Eigen from `cmeel-eigen`), into
@@ -23,7 +27,7 @@ a file lock; the module appears by atomic rename.
 
 Where it cannot be built (no compiler, no Python headers) or `OPT2SKILL_NATIVE=0` is set, `load()`
 returns None and says why once in the log; the callers then use the Python integrator,
-Crocoddyl's own residual costs and the Python replay loop, whose results agree to round-off
+Crocoddyl's own residual costs and the Python replay and frame loops, whose results agree to round-off
 (tests/test_trajopt_native.py, tests/test_data_validate.py).
 `python -m opt2skill.trajopt.native` builds it and prints where, or why not (exit status 1).
 """
@@ -145,7 +149,8 @@ def compile_command(prefix: Path, target: Path) -> list[str]:
     mujoco_include, libmujoco = mujoco_folder()
     return [
         *compiler(), "-O2", "-std=c++17", "-shared", "-fPIC", "-DNDEBUG", "-w", *PINOCCHIO_DEFINITIONS,
-        f"-I{include}", f"-I{include / 'eigen3'}", f"-I{mujoco_include}", f"-I{sysconfig.get_paths()['include']}",
+        # Crocoddyl's multibody headers include Pinocchio 3's paths, which Pinocchio 4 keeps under deprecated/.
+        f"-I{include}", f"-I{include / 'pinocchio' / 'deprecated'}", f"-I{include / 'eigen3'}", f"-I{mujoco_include}", f"-I{sysconfig.get_paths()['include']}",
         str(SOURCE), "-o", str(target),
         f"-L{prefix / 'lib'}", "-lcrocoddyl", "-lpinocchio_default", f"-l{boost_python}",
         f"-L{libmujoco.parent}", f"-l:{libmujoco.name}",

@@ -3,10 +3,12 @@
 #include "feedback_replay.hpp"
 #include "barrier_cost.hpp"
 #include "matched_euler.hpp"
+#include "frame_tracking.hpp"
 
 BOOST_PYTHON_MODULE(_native) {
   boost::python::import("crocoddyl");  // registers the base classes these derive from
   matched_euler::expose();
   barrier_cost::expose();
   feedback_replay::expose();
+  frame_tracking::expose();
 }
