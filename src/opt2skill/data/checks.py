@@ -90,28 +90,45 @@ def site_poses(robot: Robot, qpos: np.ndarray, sites: list[str]) -> tuple[np.nda
     return pos, rot
 
 
+def foot_site_poses(robot: Robot, traj: Trajectory) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Site name -> world positions (T, 3) and rotations (T, 3, 3) of every contact foot's sole and
+    corners, in one pass over the motion (the checks below each need some of them)."""
+    sites = list(dict.fromkeys(s for _, f in foot_contacts(robot, traj) for s in (f.sole_site, *f.corner_sites)))
+    if not sites:
+        return {}
+    pos, rot = site_poses(robot, traj.qpos, sites)
+    return {site: (pos[:, i], rot[:, i]) for i, site in enumerate(sites)}
+
+
+def _feet_positions(poses: dict, foot) -> np.ndarray:
+    """(T, 1 + corners, 3): a foot's sole centre and corners from `foot_site_poses`."""
+    return np.stack([poses[s][0] for s in (foot.sole_site, *foot.corner_sites)], axis=1)
+
+
 def foot_contacts(robot: Robot, traj: Trajectory) -> list[tuple[int, object]]:
     """(position in contact_names, FootConfig) of each contact that is a foot with a flat sole."""
     feet = {f.name: f for f in robot.config.feet}
     return [(c, feet[name]) for c, name in enumerate(traj.contact_names) if name in feet]
 
 
-def contact_violations(robot: Robot, traj: Trajectory, cop_min_force: float) -> dict[str, float]:
+def contact_violations(robot: Robot, traj: Trajectory, cop_min_force: float,
+                       poses: dict | None = None) -> dict[str, float]:
     """Friction-cone (N), centre-of-pressure (m) and inactive-contact force (N) violations.
 
     In each active sole's frame: the friction violation is max(0, |f_t| - mu f_n, -f_n); the CoP
     (from the torque about the sole centre) must lie in the sole rectangle, checked where
     f_n > `cop_min_force` (N): a lightly loaded foot's CoP is ill-conditioned and carries almost no
-    moment. Contacts other than feet get only the inactive-force check.
+    moment. Contacts other than feet get only the inactive-force check. `poses`: `foot_site_poses`,
+    if already computed.
     """
     mu = robot.config.friction_coefficient
     feet = foot_contacts(robot, traj)
     friction = cop = 0.0
     if feet:
-        _, rot = site_poses(robot, traj.qpos, [f.sole_site for _, f in feet])
-        for j, (c, foot) in enumerate(feet):
+        poses = foot_site_poses(robot, traj) if poses is None else poses
+        for c, foot in feet:
             active = traj.contact_active[:, c]
-            R = rot[active, j]
+            R = poses[foot.sole_site][1][active]
             f = np.einsum("tji,tj->ti", R, traj.contact_wrench[active, c, :3])
             tau = np.einsum("tji,tj->ti", R, traj.contact_wrench[active, c, 3:])
             if not len(f):
@@ -139,17 +156,19 @@ def limit_violations(robot: Robot, traj: Trajectory) -> dict[str, float]:
     }
 
 
-def foot_slip(robot: Robot, traj: Trajectory) -> float:
+def foot_slip(robot: Robot, traj: Trajectory, poses: dict | None = None) -> float:
     """Largest displacement (m) of an active sole's centre or corners since its stance phase began.
 
-    The corners make a sole that turns or tilts in place count as slipping too.
+    The corners make a sole that turns or tilts in place count as slipping too. `poses`:
+    `foot_site_poses`, if already computed.
     """
     feet = foot_contacts(robot, traj)
     if not feet:
         return 0.0
+    poses = foot_site_poses(robot, traj) if poses is None else poses
     slip = 0.0
     for c, foot in feet:
-        pos, _ = site_poses(robot, traj.qpos, [foot.sole_site, *foot.corner_sites])
+        pos = _feet_positions(poses, foot)
         active = traj.contact_active[:, c].astype(np.int8)
         starts = np.flatnonzero(np.diff(np.concatenate([[0], active])) == 1)
         stops = np.flatnonzero(np.diff(np.concatenate([active, [0]])) == -1) + 1
@@ -158,11 +177,13 @@ def foot_slip(robot: Robot, traj: Trajectory) -> float:
     return slip
 
 
-def foot_penetration(robot: Robot, traj: Trajectory) -> float:
-    """Deepest point (m) of a sole's centre or corners below the ground of the record's scene."""
+def foot_penetration(robot: Robot, traj: Trajectory, poses: dict | None = None) -> float:
+    """Deepest point (m) of a sole's centre or corners below the ground of the record's scene.
+    `poses`: `foot_site_poses`, if already computed."""
+    poses = foot_site_poses(robot, traj) if poses is None else poses
     depth = 0.0
     for _, foot in foot_contacts(robot, traj):
-        pos, _ = site_poses(robot, traj.qpos, [foot.sole_site, *foot.corner_sites])
+        pos = _feet_positions(poses, foot)
         below = traj.scene.ground_height(pos[..., :2]) - pos[..., 2]
         depth = max(depth, float(np.max(below, initial=0.0)))
     return depth

@@ -115,9 +115,10 @@ def physical_figures(robot: Robot, traj: Trajectory, config: ValidationConfig) -
     figures.update(knot_residuals(robot, traj))
     frame_res = checks.frame_dynamics_residual(robot, traj)
     figures.update(_residual_stats(frame_res[~checks.touchdown_frames(traj.contact_active)], "id_residual_frames"))
-    figures.update(checks.contact_violations(robot, traj, config.cop_min_force))
+    poses = checks.foot_site_poses(robot, traj)  # the soles' kinematics once for the checks that need them
+    figures.update(checks.contact_violations(robot, traj, config.cop_min_force, poses))
     figures.update(checks.limit_violations(robot, traj))
-    figures["foot_slip"] = 1e3 * checks.foot_slip(robot, traj)
+    figures["foot_slip"] = 1e3 * checks.foot_slip(robot, traj, poses)
     figures["derived_fields_error"] = checks.derived_fields_error(robot, traj)
     return figures
 
@@ -125,11 +126,12 @@ def physical_figures(robot: Robot, traj: Trajectory, config: ValidationConfig) -
 def kinematic_figures(robot: Robot, traj: Trajectory) -> dict[str, float | None]:
     """The figures of a record without dynamics: joint and speed limits, slip, penetration, derived fields."""
     limits = checks.limit_violations(robot, traj)
+    poses = checks.foot_site_poses(robot, traj)
     return {
         "joint_limit_violation": limits["joint_limit_violation"],
         "velocity_violation": limits["velocity_violation"],
-        "foot_slip": 1e3 * checks.foot_slip(robot, traj),
-        "foot_penetration": 1e3 * checks.foot_penetration(robot, traj),
+        "foot_slip": 1e3 * checks.foot_slip(robot, traj, poses),
+        "foot_penetration": 1e3 * checks.foot_penetration(robot, traj, poses),
         "derived_fields_error": checks.derived_fields_error(robot, traj),
     }
 

@@ -7,6 +7,8 @@ Sites are named as in the robot config (`robot.config.end_effectors` values, or 
 
 from __future__ import annotations
 
+import functools
+
 import crocoddyl
 import numpy as np
 import pinocchio as pin
@@ -24,6 +26,15 @@ def barrier(state, bounds: crocoddyl.ActivationBounds, residual):
     if native is not None:
         return native.BarrierCostModel(state, activation, residual)
     return crocoddyl.CostModelResidual(state, activation, residual)
+
+
+@functools.lru_cache(maxsize=64)
+def _wrench_cone(mu: float, box: tuple[float, ...], min_normal: float):
+    """A sole's wrench cone and its bounds, built once per shape: building one (its 17 rows) took
+    about a fifth of a walk's problem build, every stance node asking for the same. Crocoddyl's
+    residual and activation copy both, so the nodes share nothing through them."""
+    cone = crocoddyl.WrenchCone(np.eye(3), mu, np.asarray(box), 4, True, min_normal)
+    return cone, crocoddyl.ActivationBounds(cone.lb, cone.ub)
 
 
 class Terms:
@@ -100,9 +111,9 @@ class Terms:
 
     def wrench_cone(self, frame_id: int, mu: float, box: np.ndarray, min_normal: float):
         """Friction, centre of pressure and yaw torque of a flat contact (forces in its LOCAL frame)."""
-        cone = crocoddyl.WrenchCone(np.eye(3), mu, np.asarray(box, float), 4, True, min_normal)
+        cone, bounds = _wrench_cone(float(mu), tuple(np.asarray(box, float).tolist()), float(min_normal))
         residual = crocoddyl.ResidualModelContactWrenchCone(self.state, frame_id, cone, self.nu, True)
-        return barrier(self.state, crocoddyl.ActivationBounds(cone.lb, cone.ub), residual)
+        return barrier(self.state, bounds, residual)
 
     def friction_cone(self, frame_id: int, surface: np.ndarray, mu: float, min_normal: float):
         """Coulomb cone of a point contact; `surface`'s z axis is the normal (world-aligned forces)."""
