@@ -91,6 +91,10 @@ def complete(coarse: Problem, cones: ContactCones | None, policy_for_node: Polic
     reference is moved there), so the contact never pulls the foot towards a foothold it missed by
     a few millimetres: this changes the problem's contact references, so extract anything else from
     the problem first. Every frame is then an exact step of the optimizer's dynamics.
+
+    A policy with a compiled form (`compiled_law`: the tracking law, `tracking.NodeTracking`) runs
+    its node's frames in C++ where the compiled parts load (`_compiled_node`), with the same result
+    to round-off.
     """
     shooting = coarse.shooting
     state = shooting.runningModels[0].state
