@@ -131,7 +131,7 @@ def test_the_anchor_keeps_ppo_near_the_expert(squats):
             expert = EnvExpert(env, squats, config.expert)
             if anchored:
                 trainer.anchor = ExpertAnchor(expert, trainer.alg.actor, config, seed=0)
-            figures = [trainer.train_iteration() for _ in range(4)]
+            figures = [trainer.train_iteration() for _ in range(8)]
             if anchored:  # the anchor's optimizer and generator go into the PPO checkpoint
                 assert set(trainer.state()["anchor"]) == {"optimizer_state_dict", "torch_rng"}
             env.reset()  # a fixed set of expert-labelled states to score both actors on
@@ -149,8 +149,12 @@ def test_the_anchor_keeps_ppo_near_the_expert(squats):
     anchored, figures = ppo_then_clone_loss(True)
     assert "anchor/loss" not in free_figures[-1]
     assert all(f["anchor/labelled_fraction"] > 0.5 for f in figures)  # the expert is valid on most states
-    assert figures[-1]["anchor/loss"] < 0.6 * figures[0]["anchor/loss"]  # measured 0.121 -> 0.046 (seed 0)
-    assert anchored < 0.3 * free  # on states of the expert's: measured 0.0067 against 0.041 (seed 0)
+    # The anchor's loss on PPO's own states, which move as PPO learns: one iteration against the next
+    # is noisy (a reference changed at round-off moved iteration 4's ratio from 0.56 to 0.65), so the
+    # last three against the first two; measured 0.51 to 0.59 (seed 0), 0.35 and 0.26 (seeds 1, 2).
+    losses = [f["anchor/loss"] for f in figures]
+    assert np.mean(losses[-3:]) < 0.75 * np.mean(losses[:2])
+    assert anchored < 0.3 * free  # on states of the expert's: measured 0.05 to 0.10 of it (seeds 0 to 2)
 
 
 def test_a_student_distilled_on_noisy_readings_passes_less_of_their_noise_on(squats):
