@@ -78,6 +78,11 @@ inline int run(const std::shared_ptr<crocoddyl::ActionModelAbstract>& fine,
     }
     force_of.push_back(it->second.get());
   }
+  int force_size = 0;
+  for (const Contact& c : contacts) force_size += c.flat ? 6 : 3;
+  if (cone_rows > 0 && force_size != cone_cols) {
+    throw std::invalid_argument("track_frames: the cone's columns are not the contacts' forces");
+  }
   Map x(at<double>(pointers, "x"), nx), x_ref(at<double>(pointers, "x_ref"), nx), u(at<double>(pointers, "u"), nu);
   const ConstMap u_k(at<const double>(pointers, "u_k"), nu), a_plan(at<const double>(pointers, "a_plan"), nv);
   const ConstMap limit(at<const double>(pointers, "limit"), nu);
@@ -90,13 +95,13 @@ inline int run(const std::shared_ptr<crocoddyl::ActionModelAbstract>& fine,
   const double* lower = cone_rows > 0 ? at<const double>(pointers, "lower") : nullptr;
   const double* upper = cone_rows > 0 ? at<const double>(pointers, "upper") : nullptr;
 
-  Vec step = Vec::Zero(ndx), error(ndx), a_des(nv), forces(cone_cols > 0 ? cone_cols : 0), x_next(nx);
+  Vec step = Vec::Zero(ndx), error(ndx), a_des(nv), forces(cone_cols > 0 ? cone_cols : 0), x_ref_before(nx);
   step.tail(nv) = a_plan * frame_dt;  // the reference's velocity change, the same every frame
   for (int i = first; i < count; ++i) {
     if (i > 0) {
       step.head(nv) = x_ref.tail(nv) * frame_dt + a_plan * (frame_dt * frame_dt);
-      x_next = x_ref;
-      state->integrate(x_next, step, x_ref);
+      x_ref_before = x_ref;  // integrate's input and output must not alias
+      state->integrate(x_ref_before, step, x_ref);
     }
     state->diff(x, x_ref, error);
     a_des = a_plan + kp * error.head(nv) + kd * error.tail(nv);
@@ -111,7 +116,6 @@ inline int run(const std::shared_ptr<crocoddyl::ActionModelAbstract>& fine,
         forces.segment(col, size) = force_of[j]->f.toVector().head(size);
         col += size;
       }
-      if (col != cone_cols) throw std::invalid_argument("track_frames: the cone's columns are not the contacts' forces");
       const Vec rows = ConstMatrixMap(cone, cone_rows, cone_cols) * forces;
       for (int r = 0; r < cone_rows; ++r) {
         if (!(rows[r] <= upper[r] && rows[r] >= lower[r])) return i;
