@@ -149,11 +149,12 @@ def test_the_anchor_keeps_ppo_near_the_expert(squats):
     anchored, figures = ppo_then_clone_loss(True)
     assert "anchor/loss" not in free_figures[-1]
     assert all(f["anchor/labelled_fraction"] > 0.5 for f in figures)  # the expert is valid on most states
-    # The anchor's loss on PPO's own states, which move as PPO learns: one iteration against the next
+    # The anchor's loss on PPO's own states, which move as PPO learns: one iteration against the first
     # is noisy (a reference changed at round-off moved iteration 4's ratio from 0.56 to 0.65), so the
-    # last three against the first two; measured 0.51 to 0.59 (seed 0), 0.35 and 0.26 (seeds 1, 2).
+    # mean of the last four; measured 0.42 to 0.49 of the first (seed 0, either frame loop), 0.40 and
+    # 0.27 (seeds 1, 2).
     losses = [f["anchor/loss"] for f in figures]
-    assert np.mean(losses[-3:]) < 0.75 * np.mean(losses[:2])
+    assert np.mean(losses[4:]) < 0.6 * losses[0]
     assert anchored < 0.3 * free  # on states of the expert's: measured 0.05 to 0.10 of it (seeds 0 to 2)
 
 
