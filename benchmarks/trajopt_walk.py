@@ -32,7 +32,10 @@ and with the Python one, in alternating order. `--against-own-datas` solves ever
 matched nodes of one structure sharing one differential data (the default) and with a data per node
 (the same walks to the bit; docs/trajopt.md, "The node loop is memory-bound"). `--against-python-frames`
 solves every walk with the 200 Hz frames' tracking loop compiled and in Python (the same frames to
-round-off; docs/trajopt.md, "Speed: the frames' tracking loop compiled").
+round-off; docs/trajopt.md, "Speed: the frames' tracking loop compiled"). `--against-crocoddyl-solver`
+solves every walk with Box-FDDP's backward pass and the contact dynamics' derivatives compiled for
+AVX2/FMA and with Crocoddyl's (the same plans to round-off; docs/trajopt.md, "Speed: the backward
+pass and the contact dynamics' derivatives compiled for AVX2 and FMA").
 """
 
 from __future__ import annotations
@@ -54,7 +57,7 @@ from opt2skill.data.validate import ValidationConfig, validate  # noqa: E402
 from opt2skill.errors import SolverError  # noqa: E402
 from opt2skill.model import load_robot  # noqa: E402
 from opt2skill.tasks import get_task  # noqa: E402
-from opt2skill.trajopt import costs, frames, integrator, native, phases  # noqa: E402
+from opt2skill.trajopt import costs, frames, integrator, native, phases, solver  # noqa: E402
 from opt2skill.trajopt.config import parse_value  # noqa: E402
 
 
@@ -173,7 +176,8 @@ def own_datas():
 def uncompiled(*modules):
     """Problems built (and walks validated) inside use the Python or Crocoddyl version of the compiled
     parts that these modules would use (`integrator`: the matched integrator, `costs`: the barrier
-    costs, `replay`: the feedback replay's loop, `frames`: the 200 Hz frames' tracking loop)."""
+    costs, `replay`: the feedback replay's loop, `frames`: the 200 Hz frames' tracking loop, `solver`: the
+    backward pass compiled for AVX2/FMA, `phases`: the contact dynamics' derivatives compiled likewise)."""
     originals = [(module, module.load_native) for module in modules]
     for module, _ in originals:
         module.load_native = lambda: None
@@ -202,15 +206,19 @@ def main() -> None:
     parser.add_argument("--against-python-frames", action="store_true",
                         help="solve each walk with the 200 Hz frames' tracking loop compiled and in Python, "
                              "in alternating order")
+    parser.add_argument("--against-crocoddyl-solver", action="store_true",
+                        help="solve each walk with the solver's parts compiled for AVX2/FMA (the backward pass, "
+                             "the contact dynamics' derivatives) and with Crocoddyl's, in alternating order")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a walk config override (dotted key, number or true/false), repeatable")
     parser.add_argument("--against", action="append", default=[], metavar="KEY=VALUE",
                         help="solve each walk also with this override (repeatable), in alternating order")
     args = parser.parse_args()
-    if sum(map(bool, (args.against, args.against_python, args.against_crocoddyl_barriers,
-                      args.against_python_replay, args.against_own_datas, args.against_python_frames))) > 1:
+    if sum(map(bool, (args.against, args.against_python, args.against_crocoddyl_barriers, args.against_python_replay,
+                      args.against_own_datas, args.against_python_frames, args.against_crocoddyl_solver))) > 1:
         parser.error("--against, --against-python, --against-crocoddyl-barriers, --against-python-replay, "
-                     "--against-own-datas and --against-python-frames compare one thing at a time: give one of them")
+                     "--against-own-datas, --against-python-frames and --against-crocoddyl-solver compare one thing "
+                     "at a time: give one of them")
 
     robot = load_robot("digit")
     overrides = dict(_override(item) for item in args.set)
@@ -227,8 +235,12 @@ def main() -> None:
                         ("--against-python-frames", args.against_python_frames)):
         if asked and native.load() is None:
             parser.error(f"{flag} needs the compiled parts: {native.unavailable_reason()}")
+    if args.against_crocoddyl_solver and native.load_simd() is None:
+        parser.error(f"--against-crocoddyl-solver needs the AVX2/FMA parts: {native.simd_unavailable_reason()}")
     print(f"compiled parts (matched integrator, barrier costs): "
-          + ("yes" if native.load() is not None else f"no ({native.unavailable_reason()})"))
+          + ("yes" if native.load() is not None else f"no ({native.unavailable_reason()})")
+          + f"; solver parts: {solver.solver_implementation()}"
+          + (f" ({native.simd_unavailable_reason()})" if native.load_simd() is None else ""))
     # (label, task, the context it is solved in) of each way a walk is solved
     variants = [("", task, uncompiled)]
     if args.against_python:
@@ -239,6 +251,9 @@ def main() -> None:
         variants = [("shared scratch", task, uncompiled), ("own datas", task, own_datas)]
     if args.against_python_frames:
         variants = [("compiled frames", task, uncompiled), ("python frames", task, lambda: uncompiled(frames))]
+    if args.against_crocoddyl_solver:
+        variants = [("avx2-fma solver parts", task, uncompiled),
+                    ("crocoddyl's own", task, lambda: uncompiled(solver, phases))]
     if args.against:
         against = dict(_override(item) for item in args.against)
         variants = [("default", task, uncompiled),

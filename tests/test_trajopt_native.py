@@ -141,8 +141,15 @@ def test_a_walk_solves_to_the_same_plan_with_either(walk, monkeypatch):
     and the same plan to round-off; with Crocoddyl's barrier costs instead of the compiled ones, the
     same plan to the bit."""
     task, plan, _ = walk
+    from opt2skill.trajopt import phases, solver
     from opt2skill.trajopt.receding import solve_receding
     from opt2skill.trajopt.skills.stride_guess import StrideGuess
+
+    # Crocoddyl's own backward pass and contact dynamics, so that only the integrator differs (FMA's
+    # round-off in the parts compiled for AVX2 grows through the gap-closing windows to 1e-5 of the cost:
+    # their own test below).
+    monkeypatch.setattr(solver, "load_native", lambda: None)
+    monkeypatch.setattr(phases, "load_native", lambda: None)
 
     def solve():
         phases = task._with_standard_costs(plan)
@@ -325,3 +332,73 @@ def test_the_frames_tracking_loop_gives_the_python_frames(walk, monkeypatch):
     np.testing.assert_allclose(fast.tau, slow.tau, rtol=0, atol=1e-5)
     np.testing.assert_allclose(fast.wrench, slow.wrench, rtol=0, atol=1e-5)
     assert np.abs(slow.wrench).max() > 100.0 and np.abs(slow.tau).max() > 10.0
+
+
+@needs_compiler
+def test_the_parts_compiled_for_avx2_give_crocoddyls_plans(walk, monkeypatch):
+    """Box-FDDP's backward pass and the contact dynamics' derivatives compiled for AVX2 and FMA (where
+    this CPU has them, as every machine of the project's) solve two receding windows of a real walk in
+    Crocoddyl's iterations, to its plan within round-off, and give its feedback gains."""
+    needs_simd()
+    task, plan, _ = walk
+    from opt2skill.trajopt import phases, solver
+    from opt2skill.trajopt.receding import solve_receding
+    from opt2skill.trajopt.skills.stride_guess import StrideGuess
+
+    def solve():
+        built = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
+        sol = solve_receding(built, task.config.solver, window=0.6, commit=0.3, max_iter=6, first_max_iter=10,
+                             extend=StrideGuess(built, plan.context))
+        return sol, solver.riccati_gains(built.shooting, sol.xs, sol.us, 1e-6), solver.box_fddp(built.shooting)
+
+    compiled, compiled_gains, used = solve()
+    assert isinstance(used, native.load_simd().BoxFDDP) and solver.solver_implementation() == "avx2-fma"
+    monkeypatch.setattr(solver, "load_native", lambda: None)
+    monkeypatch.setattr(phases, "load_native", lambda: None)
+    theirs, their_gains, used = solve()
+    assert type(used) is crocoddyl.SolverBoxFDDP and solver.solver_implementation() == "crocoddyl"
+    assert compiled.iterations == theirs.iterations > 10
+    # FMA rounds differently: 3e-6 in the states, 2e-6 of the cost and 4e-6 of the gains seen here (6e-6,
+    # 8e-6 and 2e-6 with the backward pass alone; the windows close gaps, where round-off grows). Without
+    # the gaps' term of the value function: 12, 150 times, 16.
+    assert np.abs(compiled.xs - theirs.xs).max() < 1e-3
+    assert compiled.cost == pytest.approx(theirs.cost, rel=1e-4)
+    for mine, crocoddyls in zip(compiled_gains, their_gains, strict=True):
+        assert mine.shape == crocoddyls.shape
+        if crocoddyls.size:  # an impulse node's gain is empty
+            np.testing.assert_allclose(mine, crocoddyls, rtol=0, atol=1e-4 * max(1.0, np.abs(crocoddyls).max()))
+    assert max(np.abs(k).max() for k in their_gains if k.size) > 10.0  # real gains, not zeros
+
+
+def needs_simd():
+    if native.load_simd() is None:
+        if native.load().cpu_has_avx2_fma():  # it must build wherever it can run
+            pytest.fail(native.simd_unavailable_reason())
+        pytest.skip(native.simd_unavailable_reason())
+
+
+@needs_compiler
+@pytest.mark.parametrize("contacts", [1, 2])
+def test_the_contact_dynamics_derivatives_compiled_for_avx2_are_crocoddyls(walk, contacts):
+    """A node's contact dynamics with its derivatives' products compiled for AVX2 and FMA gives
+    Crocoddyl's step, cost, derivatives and contact forces' derivatives to round-off, off the solution
+    (a turned, tilted base, joints and speeds spread)."""
+    needs_simd()
+    _, plan, problem = walk
+    node = next(m for m in problem.shooting.runningModels if m.differential.contacts.nc == 6 * contacts)
+    ours = node.differential
+    assert isinstance(ours, native.load_simd().ContactFwdDynamics)
+    theirs = crocoddyl.DifferentialActionModelContactFwdDynamics(ours.state, ours.actuation, ours.contacts,
+                                                                  ours.costs, 0.0, True)
+    for seed in range(3):
+        x, u = random_state(plan, seed)
+        mine, crocoddyls = ours.createData(), theirs.createData()
+        for model, data in ((ours, mine), (theirs, crocoddyls)):
+            model.calc(data, x, u)
+            model.calcDiff(data, x, u)
+        for name in ("xout", "Fx", "Fu", "Lx", "Lu", "Lxx", "Lxu", "Luu", "df_dx", "df_du"):
+            a, b = getattr(mine, name), getattr(crocoddyls, name)
+            scale = max(1.0, float(np.abs(b).max()))
+            assert np.abs(a - b).max() <= 1e-9 * scale, (name, np.abs(a - b).max(), scale)
+        assert len(theirs.contacts.contacts.todict()) == contacts
+        assert np.abs(crocoddyls.Fx).max() > 1.0 and np.abs(crocoddyls.df_dx).max() > 1.0  # real derivatives

@@ -28,7 +28,7 @@ from opt2skill.trajopt.extract import knots, to_trajectory
 from opt2skill.trajopt.integrator import implementation
 from opt2skill.trajopt.params import Param, ParamSpace
 from opt2skill.trajopt.phases import Phase, Problem, ProblemBuilder
-from opt2skill.trajopt.solver import Solution, riccati_gains, solve
+from opt2skill.trajopt.solver import Solution, riccati_gains, solve, solver_implementation
 from opt2skill.trajopt.task import Task
 from opt2skill.trajopt.tracking import track
 
@@ -104,6 +104,7 @@ class PhaseTask(Task):
             "completion": settings.completion,
             # which matched integrator ran: the two agree to round-off, not bitwise (trajopt.native)
             "integrator": settings.integrator + (f" ({implementation()})" if settings.integrator == "matched" else ""),
+            "solver_parts": solver_implementation(),  # avx2-fma or crocoddyl: likewise round-off apart
             **self.solver_extras(),
         }
         traj = to_trajectory(

@@ -31,6 +31,7 @@ from opt2skill.errors import ConfigError
 from opt2skill.model.robot import Robot
 from opt2skill.trajopt.costs import Terms
 from opt2skill.trajopt.integrator import matched_euler, share_scratch, single_threaded
+from opt2skill.trajopt.native import load_simd as load_native  # the derivatives' products compiled for AVX2/FMA
 from opt2skill.trajopt.posture import Posture
 from opt2skill.trajopt.squeeze import SqueezeActuation
 from opt2skill.trajopt.settings import ContactSettings, FeasibilityWeights
@@ -117,6 +118,15 @@ class Problem:
     @property
     def duration(self) -> float:
         return self.nodes[-1].time
+
+
+def contact_dynamics(state, actuation, contacts, costs):
+    """Crocoddyl's contact forward dynamics (no damping, the forces' derivatives on), the matrix products
+    of its derivatives compiled for AVX2 and FMA where this CPU has them (`trajopt.native`; the same
+    derivatives to round-off)."""
+    compiled = load_native()
+    model = compiled.ContactFwdDynamics if compiled is not None else crocoddyl.DifferentialActionModelContactFwdDynamics
+    return model(state, actuation, contacts, costs, 0.0, True)
 
 
 class ProblemBuilder:
@@ -236,7 +246,7 @@ class ProblemBuilder:
             for name, cost, weight in phase.costs(knot, terms):
                 costs.addCost(name, cost, weight)
             self._add_limits(costs, phase.contacts, terms, knot.kind if dt > 0 else "terminal")
-        dam = crocoddyl.DifferentialActionModelContactFwdDynamics(state, actuation, contacts, costs, 0.0, True)
+        dam = contact_dynamics(state, actuation, contacts, costs)
         if with_costs:  # the optimizer keeps a torque margin for feedback; rollouts use the full range
             limit = self.robot.config.torque_limit * self.feasibility.torque_limit_scale
             dam.u_lb, dam.u_ub = -limit, limit

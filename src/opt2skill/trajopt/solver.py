@@ -16,6 +16,7 @@ import crocoddyl
 import numpy as np
 
 from opt2skill.errors import SolverError
+from opt2skill.trajopt.native import load_simd as load_native  # the backward pass compiled for AVX2/FMA
 from opt2skill.trajopt.phases import Problem
 from opt2skill.trajopt.settings import SolverSettings
 
@@ -102,11 +103,24 @@ def solve(
     return solve_shooting(problem.shooting, settings, init_xs, init_us, max_iter)
 
 
+def box_fddp(shooting: crocoddyl.ShootingProblem) -> crocoddyl.SolverBoxFDDP:
+    """Crocoddyl's Box-FDDP, its backward pass compiled for AVX2 and FMA where this CPU has them
+    (`trajopt.native`; the same plans to round-off)."""
+    compiled = load_native()
+    return compiled.BoxFDDP(shooting) if compiled is not None else crocoddyl.SolverBoxFDDP(shooting)
+
+
+def solver_implementation() -> str:
+    """'avx2-fma' where this process solves with the parts compiled for AVX2 and FMA (Box-FDDP's backward
+    pass here, the contact dynamics' derivatives in `phases.contact_dynamics`), else 'crocoddyl'."""
+    return "avx2-fma" if load_native() is not None else "crocoddyl"
+
+
 def riccati_gains(shooting: crocoddyl.ShootingProblem, xs, us, regularization: float) -> list[np.ndarray]:
     """The feedback gains of a solved motion: one Box-FDDP backward pass over the whole problem at
     (xs, us), its Quu and Vxx diagonals raised by `regularization` (Crocoddyl's preg). An impulse
     node keeps its empty gain; a control at a torque bound gets a zero row, as in the solve."""
-    solver = crocoddyl.SolverBoxFDDP(shooting)
+    solver = box_fddp(shooting)
     solver.setCandidate([np.asarray(x, dtype=float) for x in xs], [np.asarray(u, dtype=float) for u in us], True)
     solver.preg = solver.dreg = float(regularization)
     solver.calcDiff()
@@ -125,7 +139,7 @@ def solve_shooting(
 ) -> Solution:
     """Box-FDDP on a Crocoddyl problem; `is_feasible`: the guess is a rollout (no gaps); `committed`:
     how many nodes after x0 a receding window keeps (for `SolverSettings.commit_tol`)."""
-    solver = crocoddyl.SolverBoxFDDP(shooting)
+    solver = box_fddp(shooting)
     solver.alphas = [2.0**-i for i in range(settings.line_search_steps)]
     solver.th_stepInc = settings.reg_increase_below
     solver.th_acceptStep = settings.accept_step
