@@ -402,3 +402,23 @@ def test_the_contact_dynamics_derivatives_compiled_for_avx2_are_crocoddyls(walk,
             assert np.abs(a - b).max() <= 1e-9 * scale, (name, np.abs(a - b).max(), scale)
         assert len(theirs.contacts.contacts.todict()) == contacts
         assert np.abs(crocoddyls.Fx).max() > 1.0 and np.abs(crocoddyls.df_dx).max() > 1.0  # real derivatives
+
+
+@needs_compiler
+def test_a_failed_avx2_build_is_one_reason_and_crocoddyls_classes_take_over():
+    """The module compiled for AVX2 failing to build (here: an option the compiler refuses) leaves the
+    first module in use, one warning with the reason, Crocoddyl's solver and contact dynamics, and no
+    half-built module in the cache."""
+    code = ("from opt2skill.trajopt import native, phases, solver\n"
+            "native.SIMD_FLAGS = native.SIMD_FLAGS + ('-fno-such-option-here',)\n"
+            "assert native.load() is not None and native.load_simd() is None and phases.load_native() is None\n"
+            "print(native.simd_unavailable_reason())\n"
+            "print(solver.solver_implementation())\n"
+            "print(sorted(p.name for p in native.build_folder(native._simd_extension()).iterdir()))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    reason, used, left = out.stdout.strip().splitlines()
+    assert "compiling simd_module.cpp failed" in reason and "no-such-option" in reason
+    assert used == "crocoddyl" and ".so" not in left
+    assert out.stderr.count("compiled for AVX2/FMA are unavailable") == 1
+    assert out.stderr.count("using Crocoddyl's") == 1
