@@ -37,8 +37,8 @@ backward pass's products compiled here (a quarter of a walk's solve; about a thi
 `ContactFwdDynamics` (`contact_dynamics.hpp`), Crocoddyl's contact forward dynamics with the matrix
 products of its derivatives compiled here (`trajopt.phases.contact_dynamics`). It is
 built and loaded only where the CPU has both (`cpu_has_avx2_fma` of the first module), with Eigen's
-alignment kept at the wheels' 16 bytes; elsewhere, or where it does not build, the optimizer uses
-Crocoddyl's solver, whose plans it gives to round-off (tests/test_trajopt_native.py).
+alignment and allocation kept at the wheels'; elsewhere, or where it does not build, the optimizer
+uses Crocoddyl's classes, whose plans these give to round-off (tests/test_trajopt_native.py).
 """
 
 from __future__ import annotations
@@ -54,8 +54,8 @@ import subprocess
 import sys
 import sysconfig
 import tempfile
-from importlib import metadata
 from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
 from types import ModuleType
 
