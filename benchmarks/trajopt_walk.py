@@ -19,7 +19,7 @@ a lever against the defaults on the same walks (docs/trajopt.md, "Speed", has th
 `--against-python` solves every walk with the compiled matched integrator and with its Python model,
 in alternating order, and reports both (docs/trajopt.md, "Speed: the compiled matched integrator").
 `--against-crocoddyl-barriers` does the same for the compiled barrier cost against Crocoddyl's
-residual cost (the same walks to the bit; docs/trajopt.md, "Speed: barrier costs without their zeros").
+residual cost (the same walks to round-off; docs/trajopt.md, "Speed: barrier costs without their zeros").
 `--against key=value` (repeatable) does the same for config overrides: each walk is solved with and
 without them, in alternating order, and the per-walk ratio of the final costs is printed. On a
 machine whose speed drifts, only such interleaved runs compare (docs/trajopt.md, "Speed: the

@@ -89,24 +89,25 @@ def test_step_and_derivatives_are_the_python_models(walk, contacts):
     assert fast.dt == built.dt and fast.position_dt2 == pytest.approx(slow.position_dt2, rel=1e-15)
 
 
-def _barriers(model, data) -> tuple[int, int]:
-    """(flat, all): the node's barrier costs, and those whose residual is strictly inside the bounds."""
-    flat = total = 0
+def _barriers(model, data) -> list[tuple[int, int]]:
+    """(active rows, rows) of each of the node's barrier costs: rows whose residual is on or outside
+    its bounds."""
+    out = []
     for name, item in data.differential.costs.costs.todict().items():
         activation = model.differential.costs.costs[name].cost.activation
         if isinstance(activation, crocoddyl.ActivationModelQuadraticBarrier):
             r, bounds = np.asarray(item.residual.r), activation.bounds
-            total += 1
-            flat += bool(np.all((r > bounds.lb) & (r < bounds.ub)))
-    return flat, total
+            out.append((int(np.sum((r <= bounds.lb) | (r >= bounds.ub))), len(r)))
+    return out
 
 
 @needs_compiler
 @pytest.mark.parametrize("contacts", [1, 2])
-def test_barrier_costs_give_crocoddyls_derivatives_to_the_bit(walk, monkeypatch, contacts):
+def test_barrier_costs_give_crocoddyls_derivatives(walk, monkeypatch, contacts):
     """Each node built with the compiled barrier costs and with Crocoddyl's: the same cost and
-    derivatives exactly, where every barrier is flat, where some are not (states far off the plan), and
-    on one data reused from an active state to a flat one (the skipped derivatives are zero, not stale)."""
+    derivatives exactly where every barrier is flat, to round-off where a few rows are active (the
+    products over those rows alone) or many (Crocoddyl's products), states far off the plan; and on one
+    data reused from active states to a flat one (the skipped derivatives are zero, not stale)."""
     task, plan, fast_problem = walk
     monkeypatch.setattr(costs, "load_native", lambda: None)
     slow_problem = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
@@ -125,12 +126,18 @@ def test_barrier_costs_give_crocoddyls_derivatives_to_the_bit(walk, monkeypatch,
         for model, data in ((fast, fd), (slow, sd)):
             model.calc(data, x, u)
             model.calcDiff(data, x, u)
-        seen.append(_barriers(fast, fd))
+        seen += (barriers := _barriers(fast, fd))
         for name in ("Lx", "Lu", "Lxx", "Lxu", "Luu", "Fx", "Fu"):
-            np.testing.assert_array_equal(np.asarray(getattr(fd, name)), np.asarray(getattr(sd, name)), err_msg=name)
+            mine, crocoddyls = np.asarray(getattr(fd, name)), np.asarray(getattr(sd, name))
+            if not any(active for active, _ in barriers):
+                np.testing.assert_array_equal(mine, crocoddyls, err_msg=name)
+            else:  # another order of the same sums: 6e-16 seen; a dropped row or block is off by far more
+                scale = max(1.0, float(np.abs(crocoddyls).max()))
+                assert np.abs(mine - crocoddyls).max() <= 1e-13 * scale, (name, np.abs(mine - crocoddyls).max(), scale)
         assert fd.cost == sd.cost
-    assert any(flat < total for flat, total in seen[:-1])  # the derivatives were computed somewhere
-    assert seen[-1][0] == seen[-1][1]  # and skipped at the end, after active states on the same data
+    assert any(0 < active < rows / 2 for active, rows in seen)  # products over a few rows
+    assert any(active >= rows / 2 for active, rows in seen)  # and Crocoddyl's, where most rows are active
+    assert not any(active for active, _ in seen[-(contacts + 1):])  # skipped at the end, on the same data
     with pytest.raises(ValueError, match="needs a state, an activation and a residual"):  # not a crash in C++
         barrier(None, crocoddyl.ActivationModelQuad(3), None)
 
@@ -139,7 +146,7 @@ def test_barrier_costs_give_crocoddyls_derivatives_to_the_bit(walk, monkeypatch,
 def test_a_walk_solves_to_the_same_plan_with_either(walk, monkeypatch):
     """Two receding windows of a real walk, solved with each implementation: the same iterations
     and the same plan to round-off; with Crocoddyl's barrier costs instead of the compiled ones, the
-    same plan to the bit."""
+    same again."""
     task, plan, _ = walk
     from opt2skill.trajopt import phases, solver
     from opt2skill.trajopt.receding import solve_receding
@@ -161,10 +168,13 @@ def test_a_walk_solves_to_the_same_plan_with_either(walk, monkeypatch):
     with monkeypatch.context() as patch:
         patch.setattr(costs, "load_native", lambda: None)
         crocoddyl_barriers = solve()
-    assert crocoddyl_barriers.iterations == fast.iterations and crocoddyl_barriers.cost == fast.cost
-    np.testing.assert_array_equal(crocoddyl_barriers.xs, fast.xs)
+    # The active barriers' products over their active rows are another order of Crocoddyl's sums (1e-16
+    # per node); through the gap-closing windows that grew to 1e-7 of the cost here.
+    assert crocoddyl_barriers.iterations == fast.iterations
+    assert crocoddyl_barriers.cost == pytest.approx(fast.cost, rel=1e-6)
+    assert np.abs(crocoddyl_barriers.xs - fast.xs).max() < 1e-4
     for mine, theirs in zip(crocoddyl_barriers.us, fast.us, strict=True):  # impulse nodes have no torque
-        np.testing.assert_array_equal(mine, theirs)
+        assert np.allclose(mine, theirs, rtol=0.0, atol=1e-2)  # N m, of torques up to hundreds
     monkeypatch.setattr(integrator, "load_native", lambda: None)
     assert integrator.implementation() == "python"
     slow = solve()

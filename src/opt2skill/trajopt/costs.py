@@ -20,7 +20,8 @@ from opt2skill.trajopt.native import load as load_native
 def barrier(state, bounds: crocoddyl.ActivationBounds, residual):
     """A quadratic barrier outside `bounds` on a residual. Compiled where `trajopt.native` builds:
     inside the bounds (most nodes) it then skips the residual's derivatives, which Crocoddyl's cost
-    computes only to multiply them by zero; the results are the same."""
+    computes only to multiply them by zero, and with a few rows outside it multiplies those rows
+    alone; the results are Crocoddyl's to round-off."""
     activation = crocoddyl.ActivationModelQuadraticBarrier(bounds)
     native = load_native()
     if native is not None:

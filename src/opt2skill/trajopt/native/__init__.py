@@ -8,7 +8,8 @@ One module (`module.cpp`) with two Crocoddyl C++ classes and two functions (and 
   receding windows then reuse each node's data instead of allocating one per window);
 - `BarrierCostModel` (`barrier_cost.hpp`), Crocoddyl's residual cost with its derivatives skipped
   where the activation is flat: a barrier inside its bounds (a wrench inside its cone, joints inside
-  their limits) costs no residual derivatives and no products of zeros (`trajopt.costs`);
+  their limits) costs no residual derivatives and no products of zeros, and one with a few active rows
+  multiplies those rows alone (`trajopt.costs`);
 - `feedback_replay` (`feedback_replay.hpp`), the validation's 1-kHz replay under the optimizer's
   feedback law (`data.replay.Replayer.feedback_states`) as one loop around MuJoCo's `mj_step`,
   reaching the model and data through the Python objects' addresses: the Python loop spent about as
@@ -35,7 +36,8 @@ A second module (`simd_module.cpp`, loaded by `load_simd()`) holds what pays to 
 FMA, which the wheels are built without: `BoxFDDP` (`riccati.hpp`), Crocoddyl's Box-FDDP with its
 backward pass's products compiled here (a quarter of a walk's solve; about a third faster), and
 `ContactFwdDynamics` (`contact_dynamics.hpp`), Crocoddyl's contact forward dynamics with the matrix
-products of its derivatives compiled here (`trajopt.phases.contact_dynamics`). It is
+products of its derivatives and the sum of its costs' derivatives (`cost_sum.hpp`, over the blocks each
+cost fills) compiled here (`trajopt.phases.contact_dynamics`). It is
 built and loaded only where the CPU has both (`cpu_has_avx2_fma` of the first module), with Eigen's
 alignment and allocation kept at the wheels'; elsewhere, or where it does not build, the optimizer
 uses Crocoddyl's classes, whose plans these give to round-off (tests/test_trajopt_native.py).
@@ -63,7 +65,7 @@ log = logging.getLogger(__name__)
 
 MODULE = "_native"
 SOURCE = Path(__file__).with_name("module.cpp")
-SIMD_HEADERS = tuple(Path(__file__).with_name(name) for name in ("contact_dynamics.hpp", "riccati.hpp"))
+SIMD_HEADERS = tuple(Path(__file__).with_name(name) for name in ("contact_dynamics.hpp", "cost_sum.hpp", "riccati.hpp"))
 HEADERS = tuple(sorted(set(Path(__file__).parent.glob("*.hpp")) - set(SIMD_HEADERS)))  # included by SOURCE
 STACK = ("crocoddyl", "pin", "libpinocchio", "cmeel-boost", "cmeel-eigen", "mujoco")  # what the binary depends on
 

@@ -3,7 +3,8 @@
 //
 // A node's `calcDiff` spends about a fifth of its time multiplying the KKT inverse's blocks into the
 // dynamics' and the forces' Jacobians (nv = 26, up to 12 contact rows for Digit); Pinocchio's
-// derivatives, the contacts', the actuation's and the costs' own derivatives stay the wheels' calls.
+// derivatives, the contacts', the actuation's and the costs' own derivatives stay the wheels' calls; their
+// sum is this module's (`cost_sum.hpp`).
 // The steps are those of Crocoddyl 3.2.1's `calcDiff` (contact-fwddyn.hxx), in its order of
 // operations, so that compiled for baseline x86-64 they give its derivatives to the bit. `calc` is
 // Crocoddyl's own. Models without constraints only (the optimizer's; the constructor has no manager).
@@ -13,6 +14,8 @@
 #include <crocoddyl/multibody/actions/contact-fwddyn.hpp>
 #include <pinocchio/algorithm/contact-dynamics.hpp>
 #include <pinocchio/algorithm/rnea-derivatives.hpp>
+
+#include "cost_sum.hpp"
 
 #include <memory>
 #include <stdexcept>
@@ -83,7 +86,7 @@ class ContactFwdDynamics : public DifferentialActionModelContactFwdDynamics {
       contacts.updateAccelerationDiff(forces, d->Fx.bottomRows(nv));
       contacts.updateForceDiff(forces, d->df_dx.topRows(nc), d->df_du.topRows(nc));
     }
-    get_costs()->calcDiff(d->costs, x, u);
+    cost_sum::calcDiff(*get_costs(), *d->costs, x, u);  // Crocoddyl's sum over the blocks costs fill
   }
 
   void calcDiff(const std::shared_ptr<DifferentialActionDataAbstract>& data, const Vector& x) override {
