@@ -125,7 +125,7 @@ def complete(coarse: Problem, cones: ContactCones | None, policy_for_node: Polic
         count = int(round(node.dt / FRAME_DT))
         native = load_native() if hasattr(policy, "compiled_law") else None
         if native is not None:
-            x = _compiled_node(native, policy.compiled_law(x), coarse, node, fine, fine_data, cones, limit, x,
+            x = _compiled_node(native, policy.compiled_law(), coarse, node, fine, fine_data, cones, limit, x,
                                frames, frame, count)
             frames.active[frame : frame + count] = active
             frame += count
@@ -169,7 +169,7 @@ def _compiled_node(native, law: dict, coarse: Problem, node, fine, fine_data, co
         arrays["cone"], arrays["lower"], arrays["upper"] = cones.tolerant(node.contacts, node.phase_index)
         cone_rows, cone_cols = arrays["cone"].shape
     for key, a in arrays.items():  # read and written by address
-        if not (a.flags.c_contiguous and a.dtype == np.float64) or (key in ("x", "x_ref", "u", "q", "v", "tau", "wrench")
+        if not (a.flags.c_contiguous and a.dtype == np.float64) or (key in ("x", "x_ref", "u", "gain", "q", "v", "tau", "wrench")
                                                                      and not a.flags.writeable):
             raise ValueError(f"frame tracking: {key} must be a contiguous float64 array")
     pointers = {key: a.ctypes.data for key, a in arrays.items()}

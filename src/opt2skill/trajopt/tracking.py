@@ -84,11 +84,12 @@ class NodeTracking:
             self.fine.calc(self.fine_data, x, self.u_k)
         return self.u_k + self.gain @ (a_des - self.fine_data.differential.xout)
 
-    def compiled_law(self, x: np.ndarray) -> dict:
-        """What the compiled loop needs, from the node's first state `x` (its gain computed here)."""
-        self.start(x)
+    def compiled_law(self) -> dict:
+        """What the compiled loop needs; it computes the gain itself (`start`'s, without the node's other
+        derivatives) at the node's first frame into `gain`."""
+        self.gain = np.empty((len(self.u_k), self.state.nv))
         return {"state": self.state, "kp": self.kp, "kd": self.kd, "x_ref": self.x_ref, "u_k": self.u_k,
-                "a_plan": np.ascontiguousarray(self.a_plan), "gain": np.ascontiguousarray(self.gain)}
+                "a_plan": np.ascontiguousarray(self.a_plan), "gain": self.gain}
 
 
 @functools.cache

@@ -9,11 +9,17 @@
 // evaluations around them. A frame whose wrenches leave their cones is left to the caller, which
 // projects its torque (an NNLS, `frames.ContactCones.project`): the loop returns at it with the
 // model's data evaluated at (x, u) and u written out.
+//
+// The law's gain G = (Fu^T M Fu + 1e-9 tr(.) I)^-1 Fu^T M (`tracking._least_squares_gain`) is computed
+// here too, at the node's first frame (x, u_k): Fu = da/du is Crocoddyl's (its calcDiff's product of the
+// KKT matrix's inverse and the actuation's Jacobian) without the rest of the node's derivatives, which
+// the law does not read; the Python policy spent three times the loop's share on those and the gain.
 #pragma once
 
 #include <boost/python.hpp>
 #include <crocoddyl/core/integrator/euler.hpp>
 #include <crocoddyl/multibody/actions/contact-fwddyn.hpp>
+#include <pinocchio/algorithm/contact-dynamics.hpp>
 
 #include <cstdint>
 #include <stdexcept>
@@ -44,11 +50,37 @@ struct Contact {
   std::size_t frame;
 };
 
+// The law's gain at (x, u_k) into `gain` (nu x nv, row-major), leaving the data evaluated there.
+inline void least_squares_gain(const std::shared_ptr<crocoddyl::ActionModelAbstract>& fine,
+                               const std::shared_ptr<crocoddyl::ActionDataAbstract>& fine_data,
+                               ContactDynamicsData& dynamics, const Eigen::Ref<const Vec>& x,
+                               const Eigen::Ref<const Vec>& u_k, double* gain) {
+  auto euler = std::dynamic_pointer_cast<crocoddyl::IntegratedActionModelEuler>(fine);
+  auto model = euler ? std::dynamic_pointer_cast<crocoddyl::DifferentialActionModelContactFwdDynamics>(
+                           euler->get_differential())
+                     : nullptr;
+  if (!model) throw std::invalid_argument("track_frames needs contact forward dynamics inside the Euler model");
+  fine->calc(fine_data, x, u_k);  // the mass matrix, its factorization and the contacts' Jacobian at x
+  const Eigen::Index nv = model->get_state()->get_nv(), nu = model->get_nu();
+  const Eigen::Index nc = model->get_contacts()->get_nc();
+  Eigen::MatrixXd kkt_inverse(nv + nc, nv + nc);
+  pinocchio::getKKTContactDynamicMatrixInverse(model->get_pinocchio(), dynamics.pinocchio,
+                                               dynamics.multibody.contacts->Jc.topRows(nc), kkt_inverse);
+  model->get_actuation()->calcDiff(dynamics.multibody.actuation, x, u_k);
+  const Eigen::MatrixXd fu = kkt_inverse.topLeftCorner(nv, nv) * dynamics.multibody.actuation->dtau_du;
+  Eigen::MatrixXd mass = dynamics.pinocchio.M;  // Pinocchio fills the upper triangle
+  mass.triangularView<Eigen::StrictlyLower>() = mass.transpose();
+  const Eigen::MatrixXd weighted = fu.transpose() * mass;
+  Eigen::MatrixXd hessian = weighted * fu;
+  hessian.diagonal().array() += 1e-9 * hessian.trace();
+  Eigen::Map<RowMajor>(gain, nu, nv) = hessian.partialPivLu().solve(weighted);
+}
+
 // Frames `first` to `count - 1` of a node; returns the index of the first frame not written: `count`,
 // or a frame whose wrenches left their cones (with `cone_rows` > 0), or the frame after one whose
 // next state is not finite (x then holds it). `pointers` (row-major float64, checked by the caller):
 // x (nx, in/out: the frame's state), x_ref (nx, in/out: its reference), u_k (nu), a_plan (nv), gain
-// (nu x nv), limit (nu), u (nu, out: the last frame's torque), q (count x nq), v (count x nv), tau
+// (nu x nv, out when `first` is 0: the law's gain, computed at the node's first state), limit (nu), u (nu, out: the last frame's torque), q (count x nq), v (count x nv), tau
 // (count x nu), wrench (count x ncontact_rows x 6), and with `cone_rows` > 0 cone (cone_rows x
 // cone_cols), lower and upper (cone_rows, tolerances included).
 inline int run(const std::shared_ptr<crocoddyl::ActionModelAbstract>& fine,
@@ -86,6 +118,7 @@ inline int run(const std::shared_ptr<crocoddyl::ActionModelAbstract>& fine,
   Map x(at<double>(pointers, "x"), nx), x_ref(at<double>(pointers, "x_ref"), nx), u(at<double>(pointers, "u"), nu);
   const ConstMap u_k(at<const double>(pointers, "u_k"), nu), a_plan(at<const double>(pointers, "a_plan"), nv);
   const ConstMap limit(at<const double>(pointers, "limit"), nu);
+  if (first == 0) least_squares_gain(fine, fine_data, *dynamics, x, u_k, at<double>(pointers, "gain"));
   const ConstMatrixMap gain(at<const double>(pointers, "gain"), nu, nv);
   double* out_q = at<double>(pointers, "q");
   double* out_v = at<double>(pointers, "v");
