@@ -1,4 +1,5 @@
-// A residual cost whose derivatives are skipped where its activation is flat (C++).
+// A residual cost whose derivatives are skipped where its activation is flat, and formed over its
+// active rows alone where few are active (C++).
 //
 // Crocoddyl's CostModelResidual::calcDiff always differentiates the residual and multiplies
 // Lxx = Rx^T diag(Arr) Rx (and Lxu, Luu) over every row (crocoddyl/core/costs/residual.hxx and
@@ -11,8 +12,8 @@
 // solution, one or two rows of 17 or 52), the residual is differentiated and the products run over
 // those rows alone, one outer product each, in Crocoddyl's row order; with half the rows or more
 // active, and for the residuals with products of their own (Crocoddyl's state and control residuals:
-// per joint, already cheap), Crocoddyl's products run. Inactive rows add exact zeros to Crocoddyl's sums, so the
-// results are Crocoddyl's to round-off (tests/test_trajopt_native.py).
+// per joint, already cheap), Crocoddyl's products run. Inactive rows add exact zeros to Crocoddyl's
+// sums, so the results are Crocoddyl's to round-off (tests/test_trajopt_native.py).
 #pragma once
 
 #include <boost/python.hpp>
