@@ -16,7 +16,8 @@ One module (`module.cpp`) with two Crocoddyl C++ classes and two functions (and 
   long around the physics as in it;
 - `track_frames` (`frame_tracking.hpp`), the 200 Hz frames' tracking law over one coarse node
   (`trajopt.tracking.NodeTracking`, run by `frames.complete`): two evaluations of the node's 5-ms
-  model per frame, which the Python loop spent about three times as long around; frames whose
+  model per frame, which the Python loop spent about three times as long around, and the law's gain
+  at the node's first frame (Fu from the KKT inverse, without the node's other derivatives); frames whose
   wrenches leave their cones come back to Python for their projection.
 
 It is compiled on first use with the C++ compiler of the machine (`$CXX`, else `c++`) against the
