@@ -10,7 +10,7 @@ solve.
 
 Targets: issue 3, median <= 15 s per 14-s trajectory per core including validation, >= 90 %
 accepted over the full parameter ranges; issue 19, median <= 5 s and >= 95 % accepted (at the target
-on 2026-12-07: 4.97, 5.18 and 4.76 s in three runs, then 4.8 % off and 5.88 s on the VM's slower evening;
+on 2026-12-07: 4.97, 5.18 and 4.76 s in three runs, then 4.8 % off and 5.88 and 5.23 s on the VM's slower evening;
 docs/trajopt.md says what limits it). `--set key=value` (repeatable) solves with other settings, e.g.
 a lever against the defaults on the same walks (docs/trajopt.md, "Speed", has the levers measured):
 
