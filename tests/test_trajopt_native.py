@@ -415,6 +415,47 @@ def test_the_contact_dynamics_derivatives_compiled_for_avx2_are_crocoddyls(walk,
 
 
 @needs_compiler
+@pytest.mark.parametrize("contacts", [1, 2])
+def test_the_contact_dynamics_step_compiled_for_avx2_is_crocoddyls(walk, contacts):
+    """The compiled `calc` forms only the terms of `computeAllTerms` that the dynamics, contacts and
+    costs read (native/dynamics_terms.hpp): it gives Crocoddyl's step, cost, every residual, the contact
+    forces and placements, and the terms themselves (mass matrix with the armature, bias forces, CoM
+    Jacobian for the CoM cost's derivative) to round-off, off the solution."""
+    needs_simd()
+    _, plan, problem = walk
+    node = next(m for m in problem.shooting.runningModels if m.differential.contacts.nc == 6 * contacts)
+    ours = node.differential
+    theirs = crocoddyl.DifferentialActionModelContactFwdDynamics(ours.state, ours.actuation, ours.contacts,
+                                                                  ours.costs, 0.0, True)
+    costs_read = set(ours.costs.costs.todict())
+    assert {"com_path", "posture", "torque"} <= costs_read and any(name.endswith("_cone") for name in costs_read)
+
+    def close(a, b, what):
+        a, b = np.asarray(a), np.asarray(b)
+        scale = max(1.0, float(np.abs(b).max()))
+        assert a.shape == b.shape and np.abs(a - b).max() <= 1e-10 * scale, (what, np.abs(a - b).max(), scale)
+
+    for seed in range(3):
+        x, u = random_state(plan, seed)
+        mine, crocoddyls = ours.createData(), theirs.createData()
+        ours.calc(mine, x, u)
+        theirs.calc(crocoddyls, x, u)
+        close(mine.xout, crocoddyls.xout, "xout")
+        close(mine.cost, crocoddyls.cost, "cost")
+        for name, data in crocoddyls.costs.costs.todict().items():
+            close(mine.costs.costs[name].residual.r, data.residual.r, name)
+        for name, data in crocoddyls.multibody.contacts.contacts.todict().items():
+            close(mine.multibody.contacts.contacts[name].f.vector, data.f.vector, f"{name} force")
+            close(mine.multibody.contacts.contacts[name].pinocchio.oMf[data.frame].homogeneous,
+                  data.pinocchio.oMf[data.frame].homogeneous, f"{name} placement")
+        a, b = mine.pinocchio, crocoddyls.pinocchio
+        close(np.triu(a.M), np.triu(b.M), "M")  # Pinocchio fills the upper triangle
+        for name in ("nle", "Jcom", "J", "com", "hg", "lambda_c"):
+            close(getattr(a, name) if name != "com" else a.com[0], getattr(b, name) if name != "com" else b.com[0], name)
+        assert abs(crocoddyls.cost) > 1.0 and np.abs(crocoddyls.xout).max() > 1.0  # a real step
+
+
+@needs_compiler
 def test_a_failed_avx2_build_is_one_reason_and_crocoddyls_classes_take_over():
     """The module compiled for AVX2 failing to build (here: an option the compiler refuses) leaves the
     first module in use, one warning with the reason, Crocoddyl's solver and contact dynamics, and no

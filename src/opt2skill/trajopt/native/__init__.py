@@ -66,7 +66,8 @@ log = logging.getLogger(__name__)
 
 MODULE = "_native"
 SOURCE = Path(__file__).with_name("module.cpp")
-SIMD_HEADERS = tuple(Path(__file__).with_name(name) for name in ("contact_dynamics.hpp", "cost_sum.hpp", "riccati.hpp"))
+SIMD_HEADERS = tuple(Path(__file__).with_name(name)
+                     for name in ("contact_dynamics.hpp", "cost_sum.hpp", "dynamics_terms.hpp", "riccati.hpp"))
 HEADERS = tuple(sorted(set(Path(__file__).parent.glob("*.hpp")) - set(SIMD_HEADERS)))  # included by SOURCE
 STACK = ("crocoddyl", "pin", "libpinocchio", "cmeel-boost", "cmeel-eigen", "mujoco")  # what the binary depends on
 

@@ -7,7 +7,9 @@
 // sum is this module's (`cost_sum.hpp`).
 // The steps are those of Crocoddyl 3.2.1's `calcDiff` (contact-fwddyn.hxx), in its order of
 // operations, so that compiled for baseline x86-64 they give its derivatives to the bit. `calc` is
-// Crocoddyl's own. Models without constraints only (the optimizer's; the constructor has no manager).
+// Crocoddyl's, its first step (`computeAllTerms`) replaced by the terms it reads (`dynamics_terms.hpp`):
+// the same dynamics, forces and costs to round-off, in about half the time. Models without constraints
+// only (the optimizer's; the constructor has no manager).
 #pragma once
 
 #include <boost/python.hpp>
@@ -16,6 +18,7 @@
 #include <pinocchio/algorithm/rnea-derivatives.hpp>
 
 #include "cost_sum.hpp"
+#include "dynamics_terms.hpp"
 
 #include <memory>
 #include <stdexcept>
@@ -41,13 +44,38 @@ class ContactFwdDynamics : public DifferentialActionModelContactFwdDynamics {
       : DifferentialActionModelContactFwdDynamics(state, actuation, contacts, costs, damping, enable_force),
         with_force_derivatives_(enable_force) {}  // the base keeps its flag private, without a getter
 
+  // Crocoddyl 3.2.1's calc (contact-fwddyn.hxx) step by step, `computeAllTerms` excepted.
+  void calc(const std::shared_ptr<DifferentialActionDataAbstract>& data, const Vector& x, const Vector& u) override {
+    check_sizes("calc", x, u);
+    auto* d = static_cast<DifferentialActionDataContactFwdDynamics*>(data.get());
+    const std::size_t nc = get_contacts()->get_nc();
+    const Eigen::Ref<const Eigen::VectorXd> q = x.head(state_->get_nq());
+    const Eigen::Ref<const Eigen::VectorXd> v = x.tail(state_->get_nv());
+    dynamics_terms::compute(get_pinocchio(), d->pinocchio, q, v);
+    pinocchio::computeCentroidalMomentum(get_pinocchio(), d->pinocchio);
+    // Crocoddyl adds its own armature only once set (`set_armature`); until then it is zero.
+    d->pinocchio.M.diagonal() += get_armature();
+    get_actuation()->calc(d->multibody.actuation, x, u);
+    get_contacts()->calc(d->multibody.contacts, x);
+    pinocchio::forwardDynamics(get_pinocchio(), d->pinocchio, d->multibody.actuation->tau,
+                               d->multibody.contacts->Jc.topRows(nc), d->multibody.contacts->a0.head(nc),
+                               get_damping_factor());
+    d->xout = d->pinocchio.ddq;
+    get_contacts()->updateAcceleration(d->multibody.contacts, d->pinocchio.ddq);
+    get_contacts()->updateForce(d->multibody.contacts, d->pinocchio.lambda_c);
+    d->multibody.joint->a = d->pinocchio.ddq;
+    d->multibody.joint->tau = u;
+    get_costs()->calc(d->costs, x, u);
+    d->cost = d->costs->cost;
+  }
+
+  void calc(const std::shared_ptr<DifferentialActionDataAbstract>& data, const Vector& x) override {
+    DifferentialActionModelContactFwdDynamics::calc(data, x);  // the terminal node: Crocoddyl's own
+  }
+
   void calcDiff(const std::shared_ptr<DifferentialActionDataAbstract>& data, const Vector& x,
                 const Vector& u) override {
-    if (static_cast<std::size_t>(x.size()) != state_->get_nx() || static_cast<std::size_t>(u.size()) != nu_) {
-      throw std::invalid_argument("ContactFwdDynamics.calcDiff: x has size " + std::to_string(x.size()) +
-                                  " (nx " + std::to_string(state_->get_nx()) + "), u " + std::to_string(u.size()) +
-                                  " (nu " + std::to_string(nu_) + ")");
-    }
+    check_sizes("calcDiff", x, u);
     ContactModelMultiple& contacts = *get_contacts();
     const std::size_t nv = state_->get_nv(), nc = contacts.get_nc();
     auto* d = static_cast<DifferentialActionDataContactFwdDynamics*>(data.get());
@@ -94,6 +122,14 @@ class ContactFwdDynamics : public DifferentialActionModelContactFwdDynamics {
   }
 
  private:
+  void check_sizes(const char* what, const Vector& x, const Vector& u) const {
+    if (static_cast<std::size_t>(x.size()) != state_->get_nx() || static_cast<std::size_t>(u.size()) != nu_) {
+      throw std::invalid_argument(std::string("ContactFwdDynamics.") + what + ": x has size " +
+                                  std::to_string(x.size()) + " (nx " + std::to_string(state_->get_nx()) + "), u " +
+                                  std::to_string(u.size()) + " (nu " + std::to_string(nu_) + ")");
+    }
+  }
+
   bool with_force_derivatives_;
 };
 
