@@ -201,6 +201,13 @@ def test_nodes_sharing_a_scratch_solve_to_the_same_plan_to_the_bit(walk, monkeyp
     running = [m for m in problem.shooting.runningModels if isinstance(m, native.load().MatchedEulerModel)]
     assert running and all(m.shares_data for m in running)
     assert 2 <= len(task.builder._scratch) < len(running) / 4  # a few structures: stance, each swing, ...
+    # each node's data is made with a scratch as its differential data: a mark written into each scratch
+    # reads back through every node's data, and every scratch is some node's
+    for mark, scratch in enumerate(task.builder._scratch.values()):
+        scratch.cost = 1000.0 + mark
+    marks = {d.differential.cost for m, d in zip(problem.shooting.runningModels, problem.shooting.runningDatas)
+             if isinstance(m, native.load().MatchedEulerModel)}
+    assert marks == {1000.0 + mark for mark in range(len(task.builder._scratch))}
 
     def solve():
         built = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")

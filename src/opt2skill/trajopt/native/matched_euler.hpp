@@ -62,10 +62,14 @@ class MatchedEuler : public IntegratedActionModelEuler {
   }
   bool shares_data() const { return static_cast<bool>(scratch_); }
 
+  // With a scratch, the data is made through `WithScratch`, so that Crocoddyl's data constructor takes the
+  // scratch as its differential data instead of making a full one (a Pinocchio data and the contacts' and
+  // costs' datas) that would be dropped at once: most of a walk's build time went there.
   std::shared_ptr<ActionDataAbstract> createData() override {
-    std::shared_ptr<ActionDataAbstract> data = IntegratedActionModelEuler::createData();
-    if (scratch_) static_cast<IntegratedActionDataEuler*>(data.get())->differential = scratch_;
-    return data;
+    if (!scratch_) return IntegratedActionModelEuler::createData();
+    WithScratch<double> view(*this, scratch_);
+    return std::allocate_shared<IntegratedActionDataEuler>(Eigen::aligned_allocator<IntegratedActionDataEuler>(),
+                                                           &view);
   }
 
   void calcDiff(const std::shared_ptr<ActionDataAbstract>& data, const Vector& x, const Vector& u) override {
@@ -79,6 +83,32 @@ class MatchedEuler : public IntegratedActionModelEuler {
   }
 
  private:
+  // What Crocoddyl's data constructors read of a model (IntegratedActionDataEulerTpl and its bases,
+  // 3.2.1), this model's own figures, except that its differential model "creates" the scratch.
+  template <typename Scalar>
+  class WithScratch {
+   public:
+    struct Differential {
+      std::shared_ptr<DifferentialActionDataAbstract> scratch;
+      std::shared_ptr<DifferentialActionDataAbstract> createData() const { return scratch; }
+    };
+    WithScratch(const MatchedEuler& model, std::shared_ptr<DifferentialActionDataAbstract> scratch)
+        : model_(model), differential_{std::move(scratch)} {}
+    const Differential* get_differential() const { return &differential_; }
+    const auto& get_control() const { return model_.get_control(); }
+    const auto& get_state() const { return model_.get_state(); }
+    std::size_t get_nu() const { return model_.get_nu(); }
+    std::size_t get_nr() const { return model_.get_nr(); }
+    std::size_t get_ng() const { return model_.get_ng(); }
+    std::size_t get_nh() const { return model_.get_nh(); }
+    std::size_t get_ng_T() const { return model_.get_ng_T(); }
+    std::size_t get_nh_T() const { return model_.get_nh_T(); }
+
+   private:
+    const MatchedEuler& model_;
+    Differential differential_;
+  };
+
   bool shared(const std::shared_ptr<ActionDataAbstract>& data) const {
     return scratch_ && static_cast<IntegratedActionDataEuler*>(data.get())->differential == scratch_;
   }
