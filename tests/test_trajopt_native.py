@@ -362,19 +362,38 @@ def test_the_parts_compiled_for_avx2_give_crocoddyls_plans(walk, monkeypatch):
     from opt2skill.trajopt.receding import solve_receding
     from opt2skill.trajopt.skills.stride_guess import StrideGuess
 
+    made = []  # the solvers of the windows
+    box_fddp = solver.box_fddp
+
+    def recorded(shooting):
+        made.append(box_fddp(shooting))
+        return made[-1]
+
+    monkeypatch.setattr(solver, "box_fddp", recorded)
+
     def solve():
+        made.clear()
         built = task.builder.build(task._with_standard_costs(plan), plan.x0, 0.03, integrator="matched")
         sol = solve_receding(built, task.config.solver, window=0.6, commit=0.3, max_iter=6, first_max_iter=10,
                              extend=StrideGuess(built, plan.context))
-        return sol, solver.riccati_gains(built.shooting, sol.xs, sol.us, 1e-6), solver.box_fddp(built.shooting)
+        windows = list(made)
+        return sol, solver.riccati_gains(built.shooting, sol.xs, sol.us, 1e-6), windows
 
-    compiled, compiled_gains, used = solve()
-    assert isinstance(used, native.load_simd().BoxFDDP) and solver.solver_implementation() == "avx2-fma"
+    compiled, compiled_gains, windows = solve()
+    assert isinstance(windows[0], native.load_simd().BoxFDDP) and solver.solver_implementation() == "avx2-fma"
+    # Line-search trials stop once they cannot be accepted: here about a third of them, a fifth of their
+    # nodes left out, and every iteration still takes Crocoddyl's step length (below).
+    stopped = sum(w.line_search_stopped for w in windows)
+    skipped = sum(w.line_search_nodes_skipped for w in windows)
+    assert stopped > 0.1 * sum(w.line_search_trials for w in windows)
+    assert skipped > 0.05 * (skipped + sum(w.line_search_nodes for w in windows))
     monkeypatch.setattr(solver, "load_native", lambda: None)
     monkeypatch.setattr(phases, "load_native", lambda: None)
-    theirs, their_gains, used = solve()
-    assert type(used) is crocoddyl.SolverBoxFDDP and solver.solver_implementation() == "crocoddyl"
+    theirs, their_gains, windows = solve()
+    assert type(windows[0]) is crocoddyl.SolverBoxFDDP and solver.solver_implementation() == "crocoddyl"
     assert compiled.iterations == theirs.iterations > 10
+    assert compiled.windows[0][1] == theirs.windows[0][1]
+    assert [w[1] for w in compiled.windows] == [w[1] for w in theirs.windows]  # iterations per window
     # FMA rounds differently: 3e-6 in the states, 2e-6 of the cost and 4e-6 of the gains seen here (6e-6,
     # 8e-6 and 2e-6 with the backward pass alone; the windows close gaps, where round-off grows). Without
     # the gaps' term of the value function: 12, 150 times, 16.

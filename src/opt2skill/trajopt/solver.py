@@ -104,8 +104,9 @@ def solve(
 
 
 def box_fddp(shooting: crocoddyl.ShootingProblem) -> crocoddyl.SolverBoxFDDP:
-    """Crocoddyl's Box-FDDP, its backward pass compiled for AVX2 and FMA where this CPU has them
-    (`trajopt.native`; the same plans to round-off)."""
+    """Crocoddyl's Box-FDDP, its backward pass compiled for AVX2 and FMA where this CPU has them, and
+    its line-search trials stopped once they cannot be accepted (`trajopt.native`; the same iterations,
+    the same plans to round-off)."""
     compiled = load_native()
     return compiled.BoxFDDP(shooting) if compiled is not None else crocoddyl.SolverBoxFDDP(shooting)
 
