@@ -107,6 +107,30 @@ def params_text(params: dict) -> str:
     return ", ".join(f"{k} {params[k]:.3g}" for k in keys)
 
 
+_SOLVERS: list = []  # the Box-FDDP solvers made since the last walk began (their line-search counts)
+
+
+def _recording_box_fddp(shooting):
+    made = _BOX_FDDP(shooting)
+    _SOLVERS.append(made)
+    return made
+
+
+_BOX_FDDP = solver.box_fddp
+solver.box_fddp = _recording_box_fddp
+
+
+def _line_search_counts() -> tuple[int, int, int, int]:
+    """(trials, stopped, nodes evaluated, nodes left out) of the compiled solver's line searches on
+    trajectories without gaps (zeros with Crocoddyl's solver, which stops no trial)."""
+    counts = [0, 0, 0, 0]
+    for made in _SOLVERS:
+        if hasattr(made, "line_search_trials"):
+            for i, name in enumerate(("trials", "stopped", "nodes", "nodes_skipped")):
+                counts[i] += getattr(made, f"line_search_{name}")
+    return tuple(counts)
+
+
 class Tally:
     """Seconds, iterations and verdicts of the walks solved with one implementation."""
 
@@ -114,11 +138,14 @@ class Tally:
         self.solve, self.valid, self.total, self.solve_cpu, self.valid_cpu, self.total_cpu = ([] for _ in range(6))
         self.iterations, self.costs, self.accepted, self.reasons = [], [], 0, Counter()
         self.cost_of: dict[int, float] = {}  # walk index -> final cost
+        self.line_search = [0, 0, 0, 0]  # trials, stopped, nodes, nodes left out (`_line_search_counts`)
 
     def walk(self, robot, task, config, index: int, params: dict, seed: int, label: str) -> None:
         start, start_cpu = time.perf_counter(), time.process_time()
+        _SOLVERS.clear()
         try:
             traj = task.solve(params, seed)
+            self.line_search = [a + b for a, b in zip(self.line_search, _line_search_counts())]
         except SolverError as exc:
             self.reasons["solver_failed"] += 1
             print(f"{index:3d} {label} FAILED ({time.perf_counter() - start:.1f} s): {exc}  [{params_text(params)}]", flush=True)
@@ -160,6 +187,10 @@ class Tally:
         print(f"final cost   {_stats(self.costs)}   (the assembled walk's; lower is a better plan)")
         print(f"accepted     {self.accepted}/{n} = {100.0 * self.accepted / max(n, 1):.0f} %   (target >= 95 %)")
         print(f"reasons      {dict(self.reasons) or '-'}")
+        trials, stopped, nodes, skipped = self.line_search
+        if trials:
+            print(f"line search  {stopped} of {trials} trials without gaps stopped once they could not be accepted; "
+                  f"{100.0 * skipped / (nodes + skipped):.0f} % of their node evaluations left out")
 
 
 @contextlib.contextmanager
