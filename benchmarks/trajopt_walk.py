@@ -10,8 +10,8 @@ solve.
 
 Targets: issue 3, median <= 15 s per 14-s trajectory per core including validation, >= 90 %
 accepted over the full parameter ranges; issue 19, median <= 5 s and >= 95 % accepted (at the target
-on 2026-12-07: 4.97, 5.18 and 4.76 s in three runs, then 4.8 % off and 5.88 and 5.23 s on the VM's slower evening;
-docs/trajopt.md says what limits it). `--set key=value` (repeatable) solves with other settings, e.g.
+on 2026-12-07: 4.97, 5.18 and 4.76 s in three runs, then 4.8 % off and 5.88 and 5.23 s on the VM's slower evening,
+then 11.5 % off and 4.74 s at 23:38 UTC; docs/trajopt.md says what limits it). `--set key=value` (repeatable) solves with other settings, e.g.
 a lever against the defaults on the same walks (docs/trajopt.md, "Speed", has the levers measured):
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --seed 0
