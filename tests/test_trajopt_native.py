@@ -406,6 +406,54 @@ def test_the_parts_compiled_for_avx2_give_crocoddyls_plans(walk, monkeypatch):
     assert max(np.abs(k).max() for k in their_gains if k.size) > 10.0  # real gains, not zeros
 
 
+class _Wavy(crocoddyl.ActionModelAbstract):
+    """x' = x + sin(3 u), cost (x - 2)^2 + 0.01 u^2 + offset: nonlinear enough for many rejected
+    line-search trials; a negative offset makes every node's cost negative."""
+
+    def __init__(self, offset: float, terminal: bool = False):
+        super().__init__(crocoddyl.StateVector(1), 1, 1)
+        self.offset, self.terminal = offset, terminal
+
+    def calc(self, data, x, u=None):
+        u = np.zeros(1) if u is None or self.terminal else u
+        data.xnext = x + np.sin(3.0 * u)
+        data.cost = float((x[0] - 2.0) ** 2 + 0.01 * u[0] ** 2 + self.offset)
+
+    def calcDiff(self, data, x, u=None):
+        u = np.zeros(1) if u is None or self.terminal else u
+        data.Fx, data.Fu = np.eye(1), np.array([[3.0 * np.cos(3.0 * u[0])]])
+        data.Lx, data.Lxx = np.array([2.0 * (x[0] - 2.0)]), np.array([[2.0]])
+        data.Lu, data.Luu, data.Lxu = np.array([0.02 * u[0]]), np.array([[0.02]]), np.zeros((1, 1))
+
+
+@needs_compiler
+@pytest.mark.parametrize("u0", [0.0, 0.5])
+def test_the_line_search_stops_only_where_costs_are_not_negative(u0):
+    """The compiled Box-FDDP's early stop of a line-search trial needs every node's cost >= 0: on a
+    small nonlinear problem it stops most rejected trials and keeps Crocoddyl's iterates exactly; with
+    every cost shifted below zero it stops none (a partial sum no longer bounds the total) and still
+    gives Crocoddyl's iterates."""
+    needs_simd()
+
+    def solve(offset, solver_class):
+        problem = crocoddyl.ShootingProblem(np.array([0.0]), [_Wavy(offset) for _ in range(20)], _Wavy(offset, True))
+        xs = [np.array([0.0])]
+        for _ in range(20):  # a rollout: the guess has no gaps
+            xs.append(xs[-1] + np.sin(3.0 * np.array([u0])))
+        solver = solver_class(problem)
+        solver.solve(xs, [np.array([u0])] * 20, 60, True, 1e-9)
+        return solver
+
+    for offset in (0.0, -50.0):
+        mine, crocoddyls = solve(offset, native.load_simd().BoxFDDP), solve(offset, crocoddyl.SolverBoxFDDP)
+        assert mine.iter == crocoddyls.iter > 20
+        np.testing.assert_allclose(np.array(mine.xs), np.array(crocoddyls.xs), rtol=0, atol=1e-12)
+        if offset == 0.0:
+            assert mine.line_search_stopped > 0.5 * mine.line_search_trials
+        else:
+            assert mine.line_search_stopped == 0 and mine.line_search_trials > 100
+
+
 def needs_simd():
     if native.load_simd() is None:
         if native.load().cpu_has_avx2_fma():  # it must build wherever it can run

@@ -71,7 +71,8 @@ class BoxFDDP : public crocoddyl::SolverBoxFDDP {
   // A line-search trial that stops once it cannot be accepted. On a trajectory without gaps, Box-FDDP
   // accepts a step length a when the cost falls by more than th_acceptstep * dVexp(a), with dVexp(a) =
   // a (dg + a dq / 2) known before the trial (FDDP's expectedImprovement adds nothing without gaps),
-  // unless |dg| < th_grad. Every node's cost is >= 0 (weighted squares and barriers, times dt), so the
+  // unless |dg| < th_grad. Every node's cost is >= 0 (the optimizer's are weighted squares and
+  // barriers, times dt; a node cost below zero, once seen, turns the stop off), so the
   // cost summed so far never exceeds the trial's total: once cost - sum <= th_acceptstep * dVexp, the
   // trial is rejected whatever the remaining nodes give, and they are not evaluated. A rejected trial
   // leaves nothing the solver reads (a later trial rolls out from x0 again; the derivatives are the
@@ -109,10 +110,11 @@ class BoxFDDP : public crocoddyl::SolverBoxFDDP {
       xnext_ = d->xnext;
       cost_try_ += d->cost;
       ++nodes_;
+      if (d->cost < 0.0) negative_cost_seen_ = true;  // the bound needs costs >= 0: never stop again
       if (!std::isfinite(cost_try_) || !std::isfinite(xnext_.lpNorm<Eigen::Infinity>())) {
         throw std::runtime_error("forward_error");  // as Crocoddyl's pass: the trial is skipped
       }
-      if (can_stop && cost_ - cost_try_ <= bound) {
+      if (can_stop && !negative_cost_seen_ && cost_ - cost_try_ <= bound) {
         nodes_skipped_ += T - t;  // the terminal node counts as one
         ++stopped_;
         return;
@@ -133,6 +135,7 @@ class BoxFDDP : public crocoddyl::SolverBoxFDDP {
 
  private:
   std::size_t trials_ = 0, stopped_ = 0, nodes_ = 0, nodes_skipped_ = 0;
+  bool negative_cost_seen_ = false;
 };
 
 inline void expose() {
