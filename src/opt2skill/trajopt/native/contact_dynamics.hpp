@@ -8,7 +8,8 @@
 // The steps are those of Crocoddyl 3.2.1's `calcDiff` (contact-fwddyn.hxx), in its order of
 // operations, so that compiled for baseline x86-64 they give its derivatives to the bit. `calc` is
 // Crocoddyl's, its first step (`computeAllTerms`) replaced by the terms it reads (`dynamics_terms.hpp`):
-// the same dynamics, forces and costs to round-off, in about half the time. Models without constraints
+// the same dynamics, forces and costs to round-off, the node's calc about a fifth faster for Digit
+// (14.1 -> 11.4 us with one foot, 16.7 -> 14.5 us with two). Models without constraints
 // only (the optimizer's; the constructor has no manager).
 #pragma once
 

@@ -6,7 +6,7 @@
 // map's time variation, the subtrees' centres of mass and velocities and the mechanical energy. None of
 // those is read by the forward dynamics, the contacts, the optimizer's residuals (frames, centre of
 // mass, wrench cones, state, control, joint acceleration) or the derivatives, which form their own in
-// `computeRNEADerivatives`; they were about half of the pass (16 of 28 us of a node's calc for Digit).
+// `computeRNEADerivatives`. Leaving them out takes a node's calc from 14.1 to 11.4 us for Digit.
 //
 // One forward pass (Featherstone's recursion: placements, velocities, bias accelerations with and
 // without gravity, the joint Jacobians in the world frame, each body's inertia in the world frame and
