@@ -28,6 +28,10 @@ solver's own levers"):
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/trajopt_walk.py --n 20 --against solver.reg_increase_below=0.2
 
+`--library-bound N` solves walks 0..N-1 again with their own solution as every node's guess (the
+perfect library): the most a warm start from a library of solved walks could save (issue 19; 3.7 %
+of the iterations and 2 % of the solver's seconds in the median of 5 walks, docs/trajopt.md).
+
 `--against-python-replay` solves each walk once and validates it with the compiled feedback replay
 and with the Python one, in alternating order. `--against-own-datas` solves every walk with the
 matched nodes of one structure sharing one differential data (the default) and with a data per node
@@ -60,6 +64,7 @@ from opt2skill.model import load_robot  # noqa: E402
 from opt2skill.tasks import get_task  # noqa: E402
 from opt2skill.trajopt import costs, frames, integrator, native, phases, solver  # noqa: E402
 from opt2skill.trajopt.config import parse_value  # noqa: E402
+from opt2skill.trajopt.skills import locomotion  # noqa: E402
 
 
 GAINS = {"solver.keep_gains": True}
@@ -69,6 +74,56 @@ def _stats(values: list[float]) -> str:
     if not values:
         return "n/a"
     return f"median {np.median(values):6.2f}  p90 {np.percentile(values, 90):6.2f}  max {max(values):6.2f}"
+
+
+class _OwnSolution:
+    """`extend` for the receding solve: node j's guess is a solved walk's own node j (state after it,
+    control, gain), the guess a perfect library entry would give."""
+
+    def __init__(self, solution):
+        self.solution = solution
+
+    def __call__(self, gx, gu, gK, j):
+        return self.solution.xs[j + 1].copy(), np.array(self.solution.us[j]), np.array(self.solution.K[j])
+
+
+def library_bound(robot, space, seed: int, n: int) -> None:
+    """Walks 0..n-1 solved as by default (the stride guess) and again with their own solution as every
+    node's guess: the iterations a warm start from a library of solved walks could save at most,
+    before any neighbour's mismatch or retiming (issue 19; docs/trajopt.md)."""
+    print(f"\nthe default stride guess against the perfect library (each walk's own solution as every node's "
+          f"guess), walks 0 to {n - 1}")
+    task = get_task("walk", robot, GAINS)
+    solved = {}
+    original_solve, original_guess = locomotion.solve_receding, locomotion.StrideGuess
+
+    def keep(*args, **kwargs):
+        solved["solution"] = original_solve(*args, **kwargs)
+        return solved["solution"]
+
+    rows = []
+    for index in range(n):
+        params = space.sample(seed, index)
+        locomotion.solve_receding = keep
+        try:
+            stride = task.solve(params, seed)
+            own = solved["solution"]
+            locomotion.StrideGuess = lambda problem, gait: _OwnSolution(own)
+            library = task.solve(params, seed)
+        except SolverError as exc:
+            print(f"  {index:3d} failed: {exc}")
+            continue
+        finally:
+            locomotion.solve_receding, locomotion.StrideGuess = original_solve, original_guess
+        a, b = stride.solver, library.solver
+        rows.append((a["iterations"], b["iterations"], a["solve_time"], b["solve_time"]))
+        print(f"  {index:3d} stride guess: {a['iterations']:4d} iterations {a['solve_time']:5.2f} s cost {a['cost']:8.2f}"
+              f"  | own solution: {b['iterations']:4d} iterations {b['solve_time']:5.2f} s cost {b['cost']:8.2f}")
+    if rows:
+        saved = [1.0 - lib / max(default, 1) for default, lib, _, _ in rows]
+        print(f"  iterations saved by the perfect library: median {100 * np.median(saved):.1f} %  "
+              f"(min {100 * min(saved):.1f}, max {100 * max(saved):.1f}); solver seconds "
+              f"{np.median([r[2] for r in rows]):.2f} -> {np.median([r[3] for r in rows]):.2f} (median)")
 
 
 def cold_against_warm(robot, params: dict, seed: int, max_iter: int) -> None:
@@ -241,6 +296,9 @@ def main() -> None:
     parser.add_argument("--against-crocoddyl-solver", action="store_true",
                         help="solve each walk with the solver's parts compiled for AVX2/FMA (the backward pass, "
                              "the contact dynamics' derivatives) and with Crocoddyl's, in alternating order")
+    parser.add_argument("--library-bound", type=int, default=0, metavar="N",
+                        help="after the walks, solve walks 0..N-1 again from their own solution (the perfect "
+                             "library) and print the iterations that saves at most (0: skip)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a walk config override (dotted key, number or true/false), repeatable")
     parser.add_argument("--against", action="append", default=[], metavar="KEY=VALUE",
@@ -321,6 +379,8 @@ def main() -> None:
     print(f"peak memory  {peak_mb:.0f} MB (resident, this process)")
     if args.cold_max_iter > 0:
         cold_against_warm(robot, space.sample(args.seed, 0), args.seed, args.cold_max_iter)
+    if args.library_bound > 0:
+        library_bound(robot, space, args.seed, args.library_bound)
 
 
 if __name__ == "__main__":
