@@ -304,6 +304,8 @@ def main() -> None:
     parser.add_argument("--against", action="append", default=[], metavar="KEY=VALUE",
                         help="solve each walk also with this override (repeatable), in alternating order")
     args = parser.parse_args()
+    if args.library_bound < 0:
+        parser.error(f"--library-bound must be >= 0 (0: skip), got {args.library_bound}")
     if sum(map(bool, (args.against, args.against_python, args.against_crocoddyl_barriers, args.against_python_replay,
                       args.against_own_datas, args.against_python_frames, args.against_crocoddyl_solver))) > 1:
         parser.error("--against, --against-python, --against-crocoddyl-barriers, --against-python-replay, "

@@ -392,7 +392,6 @@ def test_the_parts_compiled_for_avx2_give_crocoddyls_plans(walk, monkeypatch):
     theirs, their_gains, windows = solve()
     assert type(windows[0]) is crocoddyl.SolverBoxFDDP and solver.solver_implementation() == "crocoddyl"
     assert compiled.iterations == theirs.iterations > 10
-    assert compiled.windows[0][1] == theirs.windows[0][1]
     assert [w[1] for w in compiled.windows] == [w[1] for w in theirs.windows]  # iterations per window
     # FMA rounds differently: 3e-6 in the states, 2e-6 of the cost and 4e-6 of the gains seen here (6e-6,
     # 8e-6 and 2e-6 with the backward pass alone; the windows close gaps, where round-off grows). Without
