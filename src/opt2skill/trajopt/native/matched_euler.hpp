@@ -64,7 +64,7 @@ class MatchedEuler : public IntegratedActionModelEuler {
 
   // With a scratch, the data is made through `WithScratch`, so that Crocoddyl's data constructor takes the
   // scratch as its differential data instead of making a full one (a Pinocchio data and the contacts' and
-  // costs' datas) that would be dropped at once: most of a walk's build time went there.
+  // costs' datas) that would be dropped at once: a third of a walk's build (0.139 -> 0.094 CPU s).
   std::shared_ptr<ActionDataAbstract> createData() override {
     if (!scratch_) return IntegratedActionModelEuler::createData();
     WithScratch<double> view(*this, scratch_);
