@@ -18,6 +18,8 @@ Prints on this machine:
    and the share of the step spent inside the batch's calls; and the same work replayed in calls of
    one policy step (5 physics steps), as the environment calls the physics, which splits the gap to
    its own physics into what the short calls cost and what the environment's Python costs;
+   and the host work outside the physics per world, with the rate it alone allows (what bounds a
+   GPU backend fed by this environment);
 3. the PPO learner's samples/s (rsl_rl update: 5 epochs of 4 mini-batches over 128 worlds x 48 steps,
    actor and critic [512, 512, 256, 256]) with 1 and 2 torch threads, in float32 and with bf16
    autocast (`train --mixed-precision`).
@@ -245,6 +247,11 @@ def main() -> None:
         print(f"         the same physics in {per_step.nstep}-step calls, as the environment calls it: "
               f"{rates['per_step']:6.0f} policy steps/s = {rates['per_step'] / rates['same']:6.1%} of the "
               f"{same.nstep}-step calls; the environment {rate / rates['per_step']:6.1%} of it")
+        # Everything but the physics runs on one host core, whichever backend steps the worlds: its cost
+        # per world bounds a GPU backend fed by this environment (issue 18's target: 83.3k policy steps/s)
+        host = (1.0 - physics) * nworld / rate  # seconds per policy step
+        print(f"         host work outside the physics: {host * 1e3:6.2f} ms per step = {host / nworld * 1e6:5.1f} us "
+              f"per world; alone it caps any backend at {nworld / host:6.0f} policy steps/s")
     ceiling.close()
     for threads in () if args.no_learner else (1, 2):
         for mixed in (False, True):
